@@ -1,0 +1,491 @@
+//! Simulator configuration: every number of SPEC §2–3 with its default, the six settings, and
+//! validation that reports every problem at once.
+//!
+//! The config structs are the one place in `sim` that derives serde: they are the user-facing
+//! schema of the `[sim]` table in a run's TOML file (unknown keys are rejected).
+
+use std::fmt;
+use std::str::FromStr;
+
+use serde::{Deserialize, Serialize};
+
+/// The environment family of a setting (paper §IV.A).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub enum EnvKind {
+    /// Ten dynamic humans.
+    Env1,
+    /// Dynamic humans plus randomly placed standing humans.
+    Env2,
+    /// Dynamic humans plus two fixed groups of standing humans that form traps.
+    Env3,
+}
+
+/// One of the six settings: an environment and whether the humans see the robot.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub struct Setting {
+    pub env: EnvKind,
+    /// Visible: the robot is in every human's ORCA neighbourhood as a reciprocal agent.
+    pub robot_visible: bool,
+}
+
+impl Setting {
+    /// The six settings in the paper's order (invisible first, then visible).
+    pub const ALL: [Setting; 6] = [
+        Setting::new(EnvKind::Env1, false),
+        Setting::new(EnvKind::Env2, false),
+        Setting::new(EnvKind::Env3, false),
+        Setting::new(EnvKind::Env1, true),
+        Setting::new(EnvKind::Env2, true),
+        Setting::new(EnvKind::Env3, true),
+    ];
+
+    pub const fn new(env: EnvKind, robot_visible: bool) -> Self {
+        Self { env, robot_visible }
+    }
+
+    /// The canonical name, e.g. `env2-visible`.
+    pub fn name(&self) -> &'static str {
+        match (self.env, self.robot_visible) {
+            (EnvKind::Env1, false) => "env1-invisible",
+            (EnvKind::Env2, false) => "env2-invisible",
+            (EnvKind::Env3, false) => "env3-invisible",
+            (EnvKind::Env1, true) => "env1-visible",
+            (EnvKind::Env2, true) => "env2-visible",
+            (EnvKind::Env3, true) => "env3-visible",
+        }
+    }
+
+    /// Index in [`Setting::ALL`].
+    pub fn index(&self) -> usize {
+        Setting::ALL
+            .iter()
+            .position(|s| s == self)
+            .expect("ALL lists every setting")
+    }
+}
+
+impl fmt::Display for Setting {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+/// An unknown setting name.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("unknown setting `{0}`; expected one of env1-invisible, env2-invisible, env3-invisible, env1-visible, env2-visible, env3-visible")]
+pub struct UnknownSetting(pub String);
+
+impl FromStr for Setting {
+    type Err = UnknownSetting;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        Setting::ALL
+            .iter()
+            .copied()
+            .find(|setting| setting.name() == s)
+            .ok_or_else(|| UnknownSetting(s.to_string()))
+    }
+}
+
+/// Every problem found in a configuration, reported together.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub struct ConfigError {
+    pub problems: Vec<String>,
+}
+
+impl fmt::Display for ConfigError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "invalid configuration ({} problem", self.problems.len())?;
+        if self.problems.len() != 1 {
+            f.write_str("s")?;
+        }
+        f.write_str("):")?;
+        for p in &self.problems {
+            write!(f, "\n  - {p}")?;
+        }
+        Ok(())
+    }
+}
+
+/// Which step semantics the simulator follows.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Semantics {
+    /// SPEC §2: exact swept distance with the humans' new velocities; timeout after the step.
+    #[default]
+    Spec,
+}
+
+/// The robot (SPEC §2).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct RobotConfig {
+    pub radius_m: f64,
+    pub v_pref_mps: f64,
+    pub start_m: [f64; 2],
+    pub goal_m: [f64; 2],
+    pub heading_rad: f64,
+}
+
+impl Default for RobotConfig {
+    fn default() -> Self {
+        Self {
+            radius_m: 0.3,
+            v_pref_mps: 1.0,
+            start_m: [0.0, -4.0],
+            goal_m: [0.0, 4.0],
+            heading_rad: std::f64::consts::FRAC_PI_2,
+        }
+    }
+}
+
+/// The humans and how scenarios place them (SPEC §2).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct HumanConfig {
+    /// Humans per episode (dynamic + standing).
+    pub count: usize,
+    /// Standing humans in Env 2 and Env 3 (Env 1 has none; Env 3's traps need exactly 5).
+    pub standing: usize,
+    pub radius_m: f64,
+    pub v_pref_mps: f64,
+    /// Circle-crossing circle radius.
+    pub circle_radius_m: f64,
+    /// Half-width of the uniform start noise (times v_pref), per axis.
+    pub start_noise_m: f64,
+    /// Standing humans of Env 2 are uniform in [−w, w]².
+    pub square_half_width_m: f64,
+    /// Extra clearance between sampled agents (CrowdNav's discomfort distance).
+    pub spawn_gap_m: f64,
+    /// Env 2 standing humans keep at least this far from the robot's start and goal.
+    pub standing_clear_of_robot_m: f64,
+    /// Give up placing a human after this many rejected draws.
+    pub max_spawn_attempts: usize,
+}
+
+impl Default for HumanConfig {
+    fn default() -> Self {
+        Self {
+            count: 10,
+            standing: 5,
+            radius_m: 0.3,
+            v_pref_mps: 1.0,
+            circle_radius_m: 4.0,
+            start_noise_m: 0.5,
+            square_half_width_m: 4.0,
+            spawn_gap_m: 0.2,
+            standing_clear_of_robot_m: 1.0,
+            max_spawn_attempts: 10_000,
+        }
+    }
+}
+
+/// ORCA parameters for the humans (and the ORCA robot).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct OrcaConfig {
+    pub neighbor_dist_m: f64,
+    pub max_neighbors: usize,
+    pub time_horizon_s: f64,
+    pub time_horizon_obst_s: f64,
+    /// Added to every body radius to form the ORCA radius.
+    pub radius_margin_m: f64,
+}
+
+impl Default for OrcaConfig {
+    fn default() -> Self {
+        Self {
+            neighbor_dist_m: 10.0,
+            max_neighbors: 10,
+            time_horizon_s: 5.0,
+            time_horizon_obst_s: 5.0,
+            radius_margin_m: 0.01,
+        }
+    }
+}
+
+/// The robot's discrete action set (SPEC §2).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct ActionConfig {
+    /// Exponentially spaced speeds up to v_pref.
+    pub speeds: usize,
+    /// Heading changes evenly spaced over [−max, max], both ends included.
+    pub rotations: usize,
+    pub max_rotation_rad: f64,
+}
+
+impl Default for ActionConfig {
+    fn default() -> Self {
+        Self {
+            speeds: 5,
+            rotations: 10,
+            max_rotation_rad: std::f64::consts::FRAC_PI_8,
+        }
+    }
+}
+
+/// The FSRL reward (SPEC §3, paper eq. 4–9).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct RewardConfig {
+    pub success_reward: f64,
+    pub collision_penalty: f64,
+    /// Comfort distance r_c (boundary to boundary).
+    pub comfort_dist_m: f64,
+    /// R_c's discomfort slope: 0.25·(−0.1 + d/2) = 0.125·(d − 0.2).
+    pub discomfort_slope_per_m: f64,
+    /// Effective range r_e (centre distance) of the foresight terms.
+    pub effective_range_m: f64,
+    /// ΔT_st of R_st.
+    pub standing_horizon_s: f64,
+    /// α of R_st.
+    pub standing_alpha: f64,
+    /// ΔT_dy of R_dy.
+    pub dynamic_horizon_s: f64,
+    /// β of R_dy.
+    pub dynamic_beta: f64,
+    /// R_t on reaching the goal is −factor·t/t_limit.
+    pub time_goal_factor: f64,
+    /// R_t on timeout.
+    pub timeout_penalty: f64,
+    /// Include R_st + R_dy in the total.
+    pub foresight: bool,
+    /// Include R_t in the total.
+    pub efficiency: bool,
+}
+
+impl Default for RewardConfig {
+    fn default() -> Self {
+        Self {
+            success_reward: 1.0,
+            collision_penalty: -0.25,
+            comfort_dist_m: 0.2,
+            discomfort_slope_per_m: 0.125,
+            effective_range_m: 2.0,
+            standing_horizon_s: 2.0,
+            standing_alpha: 0.15,
+            dynamic_horizon_s: 1.0,
+            dynamic_beta: 0.5,
+            time_goal_factor: 0.1,
+            timeout_penalty: -0.2,
+            foresight: true,
+            efficiency: true,
+        }
+    }
+}
+
+/// Everything the simulator needs besides the setting and the seed.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct SimConfig {
+    pub dt_s: f64,
+    pub time_limit_s: f64,
+    pub semantics: Semantics,
+    pub robot: RobotConfig,
+    pub humans: HumanConfig,
+    pub orca: OrcaConfig,
+    pub actions: ActionConfig,
+    pub reward: RewardConfig,
+}
+
+impl Default for SimConfig {
+    fn default() -> Self {
+        Self {
+            dt_s: 0.25,
+            time_limit_s: 25.0,
+            semantics: Semantics::Spec,
+            robot: RobotConfig::default(),
+            humans: HumanConfig::default(),
+            orca: OrcaConfig::default(),
+            actions: ActionConfig::default(),
+            reward: RewardConfig::default(),
+        }
+    }
+}
+
+struct Checker(Vec<String>);
+
+impl Checker {
+    fn finite(&mut self, name: &str, v: f64) -> bool {
+        if v.is_finite() {
+            true
+        } else {
+            self.0.push(format!("{name} must be a finite number, got {v}"));
+            false
+        }
+    }
+    fn positive(&mut self, name: &str, v: f64) {
+        if self.finite(name, v) && v <= 0.0 {
+            self.0.push(format!("{name} must be > 0, got {v}"));
+        }
+    }
+    fn non_negative(&mut self, name: &str, v: f64) {
+        if self.finite(name, v) && v < 0.0 {
+            self.0.push(format!("{name} must be >= 0, got {v}"));
+        }
+    }
+    fn at_least(&mut self, name: &str, v: usize, min: usize) {
+        if v < min {
+            self.0.push(format!("{name} must be at least {min}, got {v}"));
+        }
+    }
+}
+
+impl SimConfig {
+    /// Checks every field; `Err` lists every problem found.
+    pub fn validate(&self) -> Result<(), ConfigError> {
+        let mut c = Checker(Vec::new());
+        self.check(&mut c);
+        if c.0.is_empty() {
+            Ok(())
+        } else {
+            Err(ConfigError { problems: c.0 })
+        }
+    }
+
+    fn check(&self, c: &mut Checker) {
+        c.positive("dt_s", self.dt_s);
+        c.positive("time_limit_s", self.time_limit_s);
+        if self.dt_s.is_finite() && self.time_limit_s.is_finite() && self.dt_s > self.time_limit_s
+        {
+            c.0.push(format!(
+                "dt_s ({}) must not exceed time_limit_s ({})",
+                self.dt_s, self.time_limit_s
+            ));
+        }
+        let r = &self.robot;
+        c.positive("robot.radius_m", r.radius_m);
+        c.positive("robot.v_pref_mps", r.v_pref_mps);
+        for (name, v) in [
+            ("robot.start_m[0]", r.start_m[0]),
+            ("robot.start_m[1]", r.start_m[1]),
+            ("robot.goal_m[0]", r.goal_m[0]),
+            ("robot.goal_m[1]", r.goal_m[1]),
+            ("robot.heading_rad", r.heading_rad),
+        ] {
+            c.finite(name, v);
+        }
+        let h = &self.humans;
+        c.positive("humans.radius_m", h.radius_m);
+        c.positive("humans.v_pref_mps", h.v_pref_mps);
+        c.positive("humans.circle_radius_m", h.circle_radius_m);
+        c.non_negative("humans.start_noise_m", h.start_noise_m);
+        c.positive("humans.square_half_width_m", h.square_half_width_m);
+        c.non_negative("humans.spawn_gap_m", h.spawn_gap_m);
+        c.non_negative("humans.standing_clear_of_robot_m", h.standing_clear_of_robot_m);
+        c.at_least("humans.max_spawn_attempts", h.max_spawn_attempts, 1);
+        if h.standing > h.count {
+            c.0.push(format!(
+                "humans.standing ({}) must not exceed humans.count ({})",
+                h.standing, h.count
+            ));
+        }
+        let o = &self.orca;
+        c.positive("orca.neighbor_dist_m", o.neighbor_dist_m);
+        c.positive("orca.time_horizon_s", o.time_horizon_s);
+        c.positive("orca.time_horizon_obst_s", o.time_horizon_obst_s);
+        c.non_negative("orca.radius_margin_m", o.radius_margin_m);
+        let a = &self.actions;
+        c.at_least("actions.speeds", a.speeds, 1);
+        c.at_least("actions.rotations", a.rotations, 1);
+        c.non_negative("actions.max_rotation_rad", a.max_rotation_rad);
+        if a.max_rotation_rad.is_finite() && a.max_rotation_rad > std::f64::consts::PI {
+            c.0.push(format!(
+                "actions.max_rotation_rad must be <= pi, got {}",
+                a.max_rotation_rad
+            ));
+        }
+        let w = &self.reward;
+        for (name, v) in [
+            ("reward.success_reward", w.success_reward),
+            ("reward.collision_penalty", w.collision_penalty),
+            ("reward.discomfort_slope_per_m", w.discomfort_slope_per_m),
+            ("reward.standing_alpha", w.standing_alpha),
+            ("reward.dynamic_beta", w.dynamic_beta),
+            ("reward.time_goal_factor", w.time_goal_factor),
+            ("reward.timeout_penalty", w.timeout_penalty),
+        ] {
+            c.finite(name, v);
+        }
+        c.non_negative("reward.comfort_dist_m", w.comfort_dist_m);
+        c.non_negative("reward.effective_range_m", w.effective_range_m);
+        c.non_negative("reward.standing_horizon_s", w.standing_horizon_s);
+        c.non_negative("reward.dynamic_horizon_s", w.dynamic_horizon_s);
+    }
+
+    /// Validates the config and resolves setting names, reporting every problem of both at once.
+    pub fn resolve_settings<S: AsRef<str>>(&self, names: &[S]) -> Result<Vec<Setting>, ConfigError> {
+        let mut c = Checker(Vec::new());
+        self.check(&mut c);
+        let mut settings = Vec::with_capacity(names.len());
+        for name in names {
+            match name.as_ref().parse::<Setting>() {
+                Ok(s) => {
+                    if s.env == EnvKind::Env3 && self.humans.standing != crate::scenario::ENV3_TRAPS.len() {
+                        c.0.push(format!(
+                            "{s} has {} fixed standing humans; humans.standing is {}",
+                            crate::scenario::ENV3_TRAPS.len(),
+                            self.humans.standing
+                        ));
+                    }
+                    settings.push(s);
+                }
+                Err(e) => c.0.push(e.to_string()),
+            }
+        }
+        if c.0.is_empty() {
+            Ok(settings)
+        } else {
+            Err(ConfigError { problems: c.0 })
+        }
+    }
+
+    /// The number of steps after which an episode times out.
+    pub fn max_steps(&self) -> u32 {
+        (self.time_limit_s / self.dt_s - 1e-9).ceil() as u32
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn defaults_are_valid_and_match_the_spec() {
+        let c = SimConfig::default();
+        c.validate().unwrap();
+        assert_eq!(c.max_steps(), 100);
+    }
+
+    #[test]
+    fn setting_names_round_trip() {
+        for s in Setting::ALL {
+            assert_eq!(s.name().parse::<Setting>().unwrap(), s);
+            assert_eq!(Setting::ALL[s.index()], s);
+        }
+        assert!("env4-visible".parse::<Setting>().is_err());
+    }
+
+    #[test]
+    fn every_problem_is_reported_at_once() {
+        let mut c = SimConfig::default();
+        c.dt_s = 0.0;
+        c.robot.radius_m = -0.3;
+        c.humans.standing = 11;
+        c.reward.dynamic_beta = f64::NAN;
+        c.robot.goal_m[1] = f64::INFINITY;
+        let err = c.resolve_settings(&["env1-visible", "env9-hidden"]).unwrap_err();
+        let text = err.to_string();
+        assert_eq!(err.problems.len(), 6, "{text}");
+        for needle in [
+            "dt_s must be > 0",
+            "robot.radius_m must be > 0",
+            "humans.standing (11) must not exceed humans.count (10)",
+            "reward.dynamic_beta must be a finite number",
+            "robot.goal_m[1] must be a finite number",
+            "unknown setting `env9-hidden`",
+        ] {
+            assert!(text.contains(needle), "missing {needle:?} in\n{text}");
+        }
+    }
+}

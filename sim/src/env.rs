@@ -1,0 +1,268 @@
+//! The environment: state, the humans' ORCA step, the robot's step and one-step previews.
+
+use crate::config::{ConfigError, Setting, SimConfig};
+use crate::geom::{Vec2, Vec2f};
+use crate::orca::{Orca, OrcaAgent, OrcaParams};
+use crate::reward::{evaluate_step, Outcome, StepEval};
+use crate::robot::{ActionSet, RobotState};
+use crate::scenario::{HumanState, Scenario, ScenarioError};
+
+/// Why an environment could not be built or stepped.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum EnvError {
+    #[error(transparent)]
+    Config(#[from] ConfigError),
+    #[error(transparent)]
+    Scenario(#[from] ScenarioError),
+    #[error("action index {index} is out of range: the action set has {len} actions")]
+    UnknownAction { index: usize, len: usize },
+    #[error("the episode is over ({0}); reset before stepping again")]
+    EpisodeOver(&'static str),
+}
+
+/// What one executed step produced.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct StepInfo {
+    pub action_index: usize,
+    pub eval: StepEval,
+    /// Simulated time at the end of the step.
+    pub time_s: f64,
+}
+
+/// A crowd-navigation episode in progress.
+///
+/// The humans' ORCA velocities for the coming step depend only on the current state (the robot's
+/// action does not change what humans decide this step), so they are computed once per state and
+/// shared by [`Env::preview`] over all candidate actions and by [`Env::step`].
+#[derive(Debug, Clone)]
+pub struct Env {
+    cfg: SimConfig,
+    setting: Setting,
+    seed: u64,
+    actions: ActionSet,
+    orca: Orca,
+    orca_agents: Vec<OrcaAgent>,
+    robot: RobotState,
+    humans: Vec<HumanState>,
+    steps: u32,
+    outcome: Outcome,
+    human_velocity: Vec<Vec2>,
+    human_velocity_valid: bool,
+}
+
+fn orca_params(cfg: &SimConfig) -> OrcaParams {
+    OrcaParams {
+        neighbor_dist_m: cfg.orca.neighbor_dist_m as f32,
+        max_neighbors: cfg.orca.max_neighbors,
+        time_horizon_s: cfg.orca.time_horizon_s as f32,
+        time_step_s: cfg.dt_s as f32,
+    }
+}
+
+/// CrowdNav's preferred velocity: the vector to the goal, normalised only when longer than 1.
+fn pref_velocity(position: Vec2, goal: Vec2) -> Vec2f {
+    let d = goal - position;
+    let n = d.norm();
+    let v = if n > 1.0 { d / n } else { d };
+    Vec2f::new(v.x as f32, v.y as f32)
+}
+
+fn to_f32(v: Vec2) -> Vec2f {
+    Vec2f::new(v.x as f32, v.y as f32)
+}
+
+impl Env {
+    /// The episode of `setting` for `seed`.
+    pub fn new(cfg: SimConfig, setting: Setting, seed: u64) -> Result<Self, EnvError> {
+        cfg.resolve_settings(&[setting.name()])?;
+        let scenario = Scenario::generate(&cfg, setting, seed)?;
+        Ok(Self::from_parts(cfg, setting, seed, scenario))
+    }
+
+    /// An episode that starts from an explicit scenario.
+    pub fn from_scenario(
+        cfg: SimConfig,
+        setting: Setting,
+        seed: u64,
+        scenario: Scenario,
+    ) -> Result<Self, EnvError> {
+        cfg.validate()?;
+        Ok(Self::from_parts(cfg, setting, seed, scenario))
+    }
+
+    fn from_parts(cfg: SimConfig, setting: Setting, seed: u64, scenario: Scenario) -> Self {
+        let actions = ActionSet::new(&cfg.actions, cfg.robot.v_pref_mps);
+        let n = scenario.humans.len();
+        Self {
+            orca: Orca::new(orca_params(&cfg)),
+            orca_agents: Vec::with_capacity(n + 1),
+            human_velocity: Vec::with_capacity(n),
+            human_velocity_valid: false,
+            robot: scenario.robot,
+            humans: scenario.humans,
+            steps: 0,
+            outcome: Outcome::Running,
+            cfg,
+            setting,
+            seed,
+            actions,
+        }
+    }
+
+    /// Starts the episode of `seed` in the same setting, reusing every buffer.
+    pub fn reset(&mut self, seed: u64) -> Result<(), EnvError> {
+        let scenario = Scenario::generate(&self.cfg, self.setting, seed)?;
+        self.robot = scenario.robot;
+        self.humans = scenario.humans;
+        self.seed = seed;
+        self.steps = 0;
+        self.outcome = Outcome::Running;
+        self.human_velocity_valid = false;
+        Ok(())
+    }
+
+    pub fn config(&self) -> &SimConfig {
+        &self.cfg
+    }
+    pub fn setting(&self) -> Setting {
+        self.setting
+    }
+    pub fn seed(&self) -> u64 {
+        self.seed
+    }
+    pub fn action_set(&self) -> &ActionSet {
+        &self.actions
+    }
+    pub fn robot(&self) -> &RobotState {
+        &self.robot
+    }
+    pub fn humans(&self) -> &[HumanState] {
+        &self.humans
+    }
+    /// Steps taken so far.
+    pub fn steps(&self) -> u32 {
+        self.steps
+    }
+    /// Simulated time.
+    pub fn time_s(&self) -> f64 {
+        self.steps as f64 * self.cfg.dt_s
+    }
+    /// `Running` until a terminal step.
+    pub fn outcome(&self) -> Outcome {
+        self.outcome
+    }
+    pub fn is_done(&self) -> bool {
+        self.outcome.is_terminal()
+    }
+
+    fn fill_orca_agents(&mut self, robot_extra_radius_m: f64) {
+        let margin = self.cfg.orca.radius_margin_m;
+        self.orca_agents.clear();
+        for h in &self.humans {
+            self.orca_agents.push(OrcaAgent {
+                position: to_f32(h.position),
+                velocity: to_f32(h.velocity),
+                pref_velocity: pref_velocity(h.position, h.goal),
+                radius_m: (h.radius_m + margin) as f32,
+                max_speed_mps: h.v_pref_mps as f32,
+                reciprocal: !h.standing,
+            });
+        }
+        self.orca_agents.push(OrcaAgent {
+            position: to_f32(self.robot.position),
+            velocity: to_f32(self.robot.velocity),
+            pref_velocity: pref_velocity(self.robot.position, self.robot.goal),
+            radius_m: (self.robot.radius_m + margin + robot_extra_radius_m) as f32,
+            max_speed_mps: self.robot.v_pref_mps as f32,
+            reciprocal: true,
+        });
+    }
+
+    /// The velocity every human takes during the coming step: ORCA from the current state for
+    /// dynamic humans (the robot among the neighbours only when visible), zero for standing ones.
+    pub fn human_step_velocities(&mut self) -> &[Vec2] {
+        if !self.human_velocity_valid {
+            self.fill_orca_agents(0.0);
+            let n = self.humans.len();
+            let visible_len = if self.setting.robot_visible { n + 1 } else { n };
+            self.human_velocity.clear();
+            for i in 0..n {
+                let v = if self.humans[i].standing {
+                    Vec2::zeros()
+                } else {
+                    let v = self.orca.new_velocity(i, &self.orca_agents[..visible_len]);
+                    Vec2::new(v.x as f64, v.y as f64)
+                };
+                self.human_velocity.push(v);
+            }
+            self.human_velocity_valid = true;
+        }
+        &self.human_velocity
+    }
+
+    /// The humans as they will be after the coming step, whatever the robot does.
+    pub fn next_humans(&mut self, out: &mut Vec<HumanState>) {
+        let dt = self.cfg.dt_s;
+        self.human_step_velocities();
+        out.clear();
+        out.extend(self.humans.iter().zip(&self.human_velocity).map(|(h, v)| HumanState {
+            position: h.position + v * dt,
+            velocity: *v,
+            ..*h
+        }));
+    }
+
+    /// What the step with `action_index` would give, without changing the episode.
+    pub fn preview(&mut self, action_index: usize) -> Result<StepEval, EnvError> {
+        let action = self.actions.get(action_index).ok_or(EnvError::UnknownAction {
+            index: action_index,
+            len: self.actions.len(),
+        })?;
+        self.human_step_velocities();
+        Ok(evaluate_step(
+            &self.cfg,
+            &self.robot,
+            action,
+            &self.humans,
+            &self.human_velocity,
+            self.steps + 1,
+        ))
+    }
+
+    /// Executes one step: SPEC §2's order, then every agent moves and time advances.
+    pub fn step(&mut self, action_index: usize) -> Result<StepInfo, EnvError> {
+        if self.outcome.is_terminal() {
+            return Err(EnvError::EpisodeOver(self.outcome.name()));
+        }
+        let eval = self.preview(action_index)?;
+        let dt = self.cfg.dt_s;
+        self.robot = eval.robot_next;
+        for (h, v) in self.humans.iter_mut().zip(&self.human_velocity) {
+            h.velocity = *v;
+            h.position += v * dt;
+        }
+        self.steps += 1;
+        self.outcome = eval.outcome;
+        self.human_velocity_valid = false;
+        Ok(StepInfo {
+            action_index,
+            eval,
+            time_s: self.time_s(),
+        })
+    }
+
+    /// ORCA's velocity for the robot (the robot as ego, every human a neighbour, its ORCA radius
+    /// enlarged by `safety_space_m`), as a world-frame velocity.
+    pub fn orca_robot_velocity(&mut self, safety_space_m: f64) -> Vec2 {
+        self.fill_orca_agents(safety_space_m);
+        let ego = self.humans.len();
+        let v = self.orca.new_velocity(ego, &self.orca_agents);
+        Vec2::new(v.x as f64, v.y as f64)
+    }
+
+    /// The ORCA robot policy: ORCA's velocity mapped to the nearest action.
+    pub fn orca_robot_action(&mut self, safety_space_m: f64) -> usize {
+        let v = self.orca_robot_velocity(safety_space_m);
+        self.actions.nearest(self.robot.heading_rad, v)
+    }
+}

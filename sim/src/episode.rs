@@ -1,0 +1,205 @@
+//! Running whole episodes and summarising them (paper §IV.B metrics).
+
+use crate::env::{Env, EnvError, StepInfo};
+use crate::geom::{wrap_angle, Vec2};
+use crate::reward::Outcome;
+use crate::robot::RobotState;
+
+/// Where everyone was at one instant (for pictures).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Frame {
+    pub time_s: f64,
+    pub robot: RobotState,
+    pub humans: Vec<Vec2>,
+}
+
+/// A whole episode: every step's record and, when asked for, every frame.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Episode {
+    pub steps: Vec<StepInfo>,
+    /// Frames at t = 0 and after every step (empty unless recorded).
+    pub frames: Vec<Frame>,
+    pub summary: EpisodeSummary,
+}
+
+/// The numbers of one episode.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct EpisodeSummary {
+    pub outcome: Outcome,
+    pub steps: u32,
+    pub time_s: f64,
+    pub danger_steps: u32,
+    /// Distance the robot travelled.
+    pub path_length_m: f64,
+    /// Sum over steps of |Δθ|, the heading change.
+    pub total_abs_rotation_rad: f64,
+    /// Undiscounted sum of the total rewards.
+    pub return_sum: f64,
+    /// Smallest closest distance over the episode.
+    pub min_closest_m: f64,
+}
+
+impl EpisodeSummary {
+    /// Mean |Δθ| per step (smoothness).
+    pub fn mean_abs_rotation_rad(&self) -> f64 {
+        if self.steps == 0 {
+            0.0
+        } else {
+            self.total_abs_rotation_rad / self.steps as f64
+        }
+    }
+}
+
+fn frame(env: &Env) -> Frame {
+    Frame {
+        time_s: env.time_s(),
+        robot: *env.robot(),
+        humans: env.humans().iter().map(|h| h.position).collect(),
+    }
+}
+
+/// Runs the episode in `env` to its end, asking `policy` for an action index at every step.
+pub fn run_episode<P>(env: &mut Env, mut policy: P, record_frames: bool) -> Result<Episode, EnvError>
+where
+    P: FnMut(&mut Env) -> usize,
+{
+    let mut steps = Vec::with_capacity(env.config().max_steps() as usize);
+    let mut frames = Vec::new();
+    if record_frames {
+        frames.push(frame(env));
+    }
+    let mut summary = EpisodeSummary {
+        outcome: Outcome::Running,
+        steps: 0,
+        time_s: 0.0,
+        danger_steps: 0,
+        path_length_m: 0.0,
+        total_abs_rotation_rad: 0.0,
+        return_sum: 0.0,
+        min_closest_m: f64::INFINITY,
+    };
+    while !env.is_done() {
+        let before = *env.robot();
+        let action = policy(env);
+        let info = env.step(action)?;
+        let after = env.robot();
+        summary.path_length_m += (after.position - before.position).norm();
+        summary.total_abs_rotation_rad += wrap_angle(after.heading_rad - before.heading_rad).abs();
+        summary.return_sum += info.eval.reward.total;
+        summary.min_closest_m = summary.min_closest_m.min(info.eval.closest_m);
+        if info.eval.danger {
+            summary.danger_steps += 1;
+        }
+        steps.push(info);
+        if record_frames {
+            frames.push(frame(env));
+        }
+    }
+    summary.outcome = env.outcome();
+    summary.steps = env.steps();
+    summary.time_s = env.time_s();
+    Ok(Episode {
+        steps,
+        frames,
+        summary,
+    })
+}
+
+/// Aggregate metrics over many episodes of one setting (paper §IV.B, SPEC §7).
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct Aggregate {
+    pub episodes: u32,
+    pub successes: u32,
+    pub collisions: u32,
+    pub timeouts: u32,
+    /// Sum of the nav times of successful episodes.
+    pub success_time_s: f64,
+    /// Sum of the path lengths of successful episodes.
+    pub success_path_m: f64,
+    pub danger_steps: u64,
+    pub steps: u64,
+    pub abs_rotation_rad: f64,
+    pub return_sum: f64,
+}
+
+impl Aggregate {
+    pub fn add(&mut self, s: &EpisodeSummary) {
+        self.episodes += 1;
+        match s.outcome {
+            Outcome::ReachGoal => {
+                self.successes += 1;
+                self.success_time_s += s.time_s;
+                self.success_path_m += s.path_length_m;
+            }
+            Outcome::Collision => self.collisions += 1,
+            Outcome::Timeout => self.timeouts += 1,
+            Outcome::Running => {}
+        }
+        self.danger_steps += s.danger_steps as u64;
+        self.steps += s.steps as u64;
+        self.abs_rotation_rad += s.total_abs_rotation_rad;
+        self.return_sum += s.return_sum;
+    }
+
+    /// Merges another aggregate (e.g. from another worker).
+    pub fn merge(&mut self, o: &Aggregate) {
+        self.episodes += o.episodes;
+        self.successes += o.successes;
+        self.collisions += o.collisions;
+        self.timeouts += o.timeouts;
+        self.success_time_s += o.success_time_s;
+        self.success_path_m += o.success_path_m;
+        self.danger_steps += o.danger_steps;
+        self.steps += o.steps;
+        self.abs_rotation_rad += o.abs_rotation_rad;
+        self.return_sum += o.return_sum;
+    }
+
+    fn rate(&self, n: u32) -> f64 {
+        if self.episodes == 0 {
+            0.0
+        } else {
+            n as f64 / self.episodes as f64
+        }
+    }
+    pub fn success_rate(&self) -> f64 {
+        self.rate(self.successes)
+    }
+    pub fn collision_rate(&self) -> f64 {
+        self.rate(self.collisions)
+    }
+    pub fn timeout_rate(&self) -> f64 {
+        self.rate(self.timeouts)
+    }
+    /// Mean nav time over successful episodes; `None` without a success.
+    pub fn nav_time_s(&self) -> Option<f64> {
+        (self.successes > 0).then(|| self.success_time_s / self.successes as f64)
+    }
+    /// Mean path length over successful episodes; `None` without a success.
+    pub fn path_length_m(&self) -> Option<f64> {
+        (self.successes > 0).then(|| self.success_path_m / self.successes as f64)
+    }
+    /// Disc.: danger steps over all steps.
+    pub fn discomfort(&self) -> f64 {
+        if self.steps == 0 {
+            0.0
+        } else {
+            self.danger_steps as f64 / self.steps as f64
+        }
+    }
+    /// Mean |Δθ| per step over all steps (smoothness).
+    pub fn mean_abs_rotation_rad(&self) -> f64 {
+        if self.steps == 0 {
+            0.0
+        } else {
+            self.abs_rotation_rad / self.steps as f64
+        }
+    }
+    pub fn mean_return(&self) -> f64 {
+        if self.episodes == 0 {
+            0.0
+        } else {
+            self.return_sum / self.episodes as f64
+        }
+    }
+}

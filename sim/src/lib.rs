@@ -1,0 +1,35 @@
+//! `sim`: the crowd simulator of fsrl (SPEC §2–3). A pure, deterministic library: no IO, no
+//! tensors, no async.
+//!
+//! - [`orca`]: ORCA with RVO2's semantics (float32) and per-agent avoidance responsibility.
+//! - [`robot`]: unicycle kinematics and the 51-action set.
+//! - [`scenario`]: the six settings' initial states from (setting, seed).
+//! - [`env`]: the step (humans' ORCA step, robot action, swept closest distance, outcome) and
+//!   side-effect-free previews for one-step lookahead.
+//! - [`reward`]: the FSRL reward term by term, as a pure function shared by env and policies.
+//! - [`episode`]: whole episodes and the paper's metrics.
+//!
+//! ```
+//! use sim::{Env, Setting, SimConfig, run_episode};
+//! let setting: Setting = "env2-invisible".parse().unwrap();
+//! let mut env = Env::new(SimConfig::default(), setting, 1000).unwrap();
+//! let episode = run_episode(&mut env, |env| env.orca_robot_action(0.0), false).unwrap();
+//! assert!(episode.summary.outcome.is_terminal());
+//! ```
+
+pub mod config;
+pub mod env;
+pub mod episode;
+pub mod geom;
+pub mod orca;
+pub mod reward;
+pub mod robot;
+pub mod scenario;
+
+pub use config::{ConfigError, EnvKind, Semantics, Setting, SimConfig};
+pub use env::{Env, EnvError, StepInfo};
+pub use episode::{run_episode, Aggregate, Episode, EpisodeSummary, Frame};
+pub use geom::Vec2;
+pub use reward::{evaluate_step, Outcome, RewardTerms, StepEval};
+pub use robot::{Action, ActionSet, RobotState};
+pub use scenario::{HumanState, Scenario, ScenarioError};
