@@ -310,7 +310,8 @@ impl Checker {
         if v.is_finite() {
             true
         } else {
-            self.0.push(format!("{name} must be a finite number, got {v}"));
+            self.0
+                .push(format!("{name} must be a finite number, got {v}"));
             false
         }
     }
@@ -326,7 +327,8 @@ impl Checker {
     }
     fn at_least(&mut self, name: &str, v: usize, min: usize) {
         if v < min {
-            self.0.push(format!("{name} must be at least {min}, got {v}"));
+            self.0
+                .push(format!("{name} must be at least {min}, got {v}"));
         }
     }
 }
@@ -346,8 +348,7 @@ impl SimConfig {
     fn check(&self, c: &mut Checker) {
         c.positive("dt_s", self.dt_s);
         c.positive("time_limit_s", self.time_limit_s);
-        if self.dt_s.is_finite() && self.time_limit_s.is_finite() && self.dt_s > self.time_limit_s
-        {
+        if self.dt_s.is_finite() && self.time_limit_s.is_finite() && self.dt_s > self.time_limit_s {
             c.0.push(format!(
                 "dt_s ({}) must not exceed time_limit_s ({})",
                 self.dt_s, self.time_limit_s
@@ -372,7 +373,10 @@ impl SimConfig {
         c.non_negative("humans.start_noise_m", h.start_noise_m);
         c.positive("humans.square_half_width_m", h.square_half_width_m);
         c.non_negative("humans.spawn_gap_m", h.spawn_gap_m);
-        c.non_negative("humans.standing_clear_of_robot_m", h.standing_clear_of_robot_m);
+        c.non_negative(
+            "humans.standing_clear_of_robot_m",
+            h.standing_clear_of_robot_m,
+        );
         c.at_least("humans.max_spawn_attempts", h.max_spawn_attempts, 1);
         if h.standing > h.count {
             c.0.push(format!(
@@ -414,14 +418,19 @@ impl SimConfig {
     }
 
     /// Validates the config and resolves setting names, reporting every problem of both at once.
-    pub fn resolve_settings<S: AsRef<str>>(&self, names: &[S]) -> Result<Vec<Setting>, ConfigError> {
+    pub fn resolve_settings<S: AsRef<str>>(
+        &self,
+        names: &[S],
+    ) -> Result<Vec<Setting>, ConfigError> {
         let mut c = Checker(Vec::new());
         self.check(&mut c);
         let mut settings = Vec::with_capacity(names.len());
         for name in names {
             match name.as_ref().parse::<Setting>() {
                 Ok(s) => {
-                    if s.env == EnvKind::Env3 && self.humans.standing != crate::scenario::ENV3_TRAPS.len() {
+                    if s.env == EnvKind::Env3
+                        && self.humans.standing != crate::scenario::ENV3_TRAPS.len()
+                    {
                         c.0.push(format!(
                             "{s} has {} fixed standing humans; humans.standing is {}",
                             crate::scenario::ENV3_TRAPS.len(),
@@ -474,7 +483,9 @@ mod tests {
         c.humans.standing = 11;
         c.reward.dynamic_beta = f64::NAN;
         c.robot.goal_m[1] = f64::INFINITY;
-        let err = c.resolve_settings(&["env1-visible", "env9-hidden"]).unwrap_err();
+        let err = c
+            .resolve_settings(&["env1-visible", "env9-hidden"])
+            .unwrap_err();
         let text = err.to_string();
         assert_eq!(err.problems.len(), 6, "{text}");
         for needle in [

@@ -205,19 +205,27 @@ impl Env {
         let dt = self.cfg.dt_s;
         self.human_step_velocities();
         out.clear();
-        out.extend(self.humans.iter().zip(&self.human_velocity).map(|(h, v)| HumanState {
-            position: h.position + v * dt,
-            velocity: *v,
-            ..*h
-        }));
+        out.extend(
+            self.humans
+                .iter()
+                .zip(&self.human_velocity)
+                .map(|(h, v)| HumanState {
+                    position: h.position + v * dt,
+                    velocity: *v,
+                    ..*h
+                }),
+        );
     }
 
     /// What the step with `action_index` would give, without changing the episode.
     pub fn preview(&mut self, action_index: usize) -> Result<StepEval, EnvError> {
-        let action = self.actions.get(action_index).ok_or(EnvError::UnknownAction {
-            index: action_index,
-            len: self.actions.len(),
-        })?;
+        let action = self
+            .actions
+            .get(action_index)
+            .ok_or(EnvError::UnknownAction {
+                index: action_index,
+                len: self.actions.len(),
+            })?;
         self.human_step_velocities();
         Ok(evaluate_step(
             &self.cfg,

@@ -59,7 +59,11 @@ fn frame(env: &Env) -> Frame {
 }
 
 /// Runs the episode in `env` to its end, asking `policy` for an action index at every step.
-pub fn run_episode<P>(env: &mut Env, mut policy: P, record_frames: bool) -> Result<Episode, EnvError>
+pub fn run_episode<P>(
+    env: &mut Env,
+    mut policy: P,
+    record_frames: bool,
+) -> Result<Episode, EnvError>
 where
     P: FnMut(&mut Env) -> usize,
 {

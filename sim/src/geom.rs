@@ -70,8 +70,14 @@ mod tests {
         for k in -20..20 {
             let a = k as f64 * 0.7;
             let w = wrap_angle(a);
-            assert!((-std::f64::consts::PI..std::f64::consts::PI).contains(&w), "{a} -> {w}");
-            assert!(((a - w) / std::f64::consts::TAU).fract().abs() < 1e-9 || ((a - w) / std::f64::consts::TAU).fract().abs() > 1.0 - 1e-9);
+            assert!(
+                (-std::f64::consts::PI..std::f64::consts::PI).contains(&w),
+                "{a} -> {w}"
+            );
+            assert!(
+                ((a - w) / std::f64::consts::TAU).fract().abs() < 1e-9
+                    || ((a - w) / std::f64::consts::TAU).fract().abs() > 1.0 - 1e-9
+            );
         }
         assert_eq!(wrap_angle(std::f64::consts::PI), -std::f64::consts::PI);
     }

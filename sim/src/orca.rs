@@ -74,7 +74,6 @@ fn div(a: Vec2f, s: f32) -> Vec2f {
     Vec2f::new(a.x * inv, a.y * inv)
 }
 
-
 #[inline]
 fn normalize(a: Vec2f) -> Vec2f {
     div(a, abs_sq(a).sqrt())
@@ -177,7 +176,8 @@ impl Orca {
                 let w = relative_velocity - relative_position * inv_time_horizon;
                 let w_length_sq = abs_sq(w);
                 let dot_product1 = dot(w, relative_position);
-                if dot_product1 < 0.0 && dot_product1 * dot_product1 > combined_radius_sq * w_length_sq
+                if dot_product1 < 0.0
+                    && dot_product1 * dot_product1 > combined_radius_sq * w_length_sq
                 {
                     // Project on the cut-off circle.
                     let w_length = w_length_sq.sqrt();
@@ -325,19 +325,18 @@ fn linear_program3(
             proj_lines.clear();
             for j in 0..i {
                 let determinant = det(lines[i].direction, lines[j].direction);
-                let point;
-                if determinant.abs() <= RVO_EPSILON {
+                let point = if determinant.abs() <= RVO_EPSILON {
                     if dot(lines[i].direction, lines[j].direction) > 0.0 {
                         // Same direction.
                         continue;
                     }
-                    point = (lines[i].point + lines[j].point) * 0.5;
+                    (lines[i].point + lines[j].point) * 0.5
                 } else {
-                    point = lines[i].point
+                    lines[i].point
                         + lines[i].direction
                             * (det(lines[j].direction, lines[i].point - lines[j].point)
-                                / determinant);
-                }
+                                / determinant)
+                };
                 let direction = normalize(lines[j].direction - lines[i].direction);
                 proj_lines.push(Line { point, direction });
             }
@@ -413,7 +412,10 @@ mod tests {
         let full = orca.new_velocity(0, &agents);
         // The correction away from the preferred velocity is larger with full responsibility.
         let pref = Vec2f::new(1.0, 0.0);
-        assert!((full - pref).norm() > (half - pref).norm() * 1.5, "{half:?} {full:?}");
+        assert!(
+            (full - pref).norm() > (half - pref).norm() * 1.5,
+            "{half:?} {full:?}"
+        );
     }
 
     #[test]

@@ -103,7 +103,9 @@ pub fn evaluate_step(
     let collision_goal = match outcome {
         Outcome::Collision => w.collision_penalty,
         Outcome::ReachGoal => w.success_reward,
-        _ if closest_m < w.comfort_dist_m => w.discomfort_slope_per_m * (closest_m - w.comfort_dist_m),
+        _ if closest_m < w.comfort_dist_m => {
+            w.discomfort_slope_per_m * (closest_m - w.comfort_dist_m)
+        }
         _ => 0.0,
     };
     let standing = standing_penalty(cfg, robot, robot_velocity, humans);

@@ -66,8 +66,7 @@ impl ActionSet {
         let n = cfg.speeds.max(1);
         let speeds: Vec<f64> = (0..n)
             .map(|i| {
-                (((i + 1) as f64 / n as f64).exp() - 1.0) / (std::f64::consts::E - 1.0)
-                    * v_pref_mps
+                (((i + 1) as f64 / n as f64).exp() - 1.0) / (std::f64::consts::E - 1.0) * v_pref_mps
             })
             .collect();
         let m = cfg.rotations.max(1);

@@ -85,7 +85,11 @@ fn clear_of(placed: &[Placed], p: Vec2, radius_m: f64, gap_m: f64) -> bool {
 impl Scenario {
     /// Generates the scenario of `setting` for `seed`. The config must be valid
     /// ([`SimConfig::validate`]).
-    pub fn generate(cfg: &SimConfig, setting: Setting, seed: u64) -> Result<Scenario, ScenarioError> {
+    pub fn generate(
+        cfg: &SimConfig,
+        setting: Setting,
+        seed: u64,
+    ) -> Result<Scenario, ScenarioError> {
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
         let robot = initial_robot(cfg);
         let h = &cfg.humans;
@@ -117,6 +121,8 @@ impl Scenario {
 
         // Standing humans first, so that dynamic ones are drawn clear of them.
         let mut standing = Vec::with_capacity(standing_count);
+        // `k` names the human in errors as well as indexing the fixed traps.
+        #[allow(clippy::needless_range_loop)]
         for k in 0..standing_count {
             let position = match setting.env {
                 EnvKind::Env3 => Vec2::new(ENV3_TRAPS[k][0], ENV3_TRAPS[k][1]),
@@ -127,7 +133,8 @@ impl Scenario {
                             (rng.gen::<f64>() * 2.0 - 1.0) * h.square_half_width_m,
                             (rng.gen::<f64>() * 2.0 - 1.0) * h.square_half_width_m,
                         );
-                        let clear_robot = (p - robot.position).norm() >= h.standing_clear_of_robot_m
+                        let clear_robot = (p - robot.position).norm()
+                            >= h.standing_clear_of_robot_m
                             && (p - robot.goal).norm() >= h.standing_clear_of_robot_m;
                         if clear_robot && clear_of(&placed, p, h.radius_m, h.spawn_gap_m) {
                             found = Some(p);
@@ -235,7 +242,10 @@ mod tests {
                     for (j, o) in sc.humans.iter().enumerate() {
                         let both_fixed = s.env == EnvKind::Env3 && h.standing && o.standing;
                         if i != j && !both_fixed {
-                            assert!((h.position - o.position).norm() >= min, "{s} {seed} {i} {j}");
+                            assert!(
+                                (h.position - o.position).norm() >= min,
+                                "{s} {seed} {i} {j}"
+                            );
                         }
                     }
                 }

@@ -97,8 +97,12 @@ fn parse(path: &Path) -> Scene {
 }
 
 fn csv_files(dir: &Path, out: &mut Vec<PathBuf>) {
-    let entries = std::fs::read_dir(dir)
-        .unwrap_or_else(|e| panic!("cannot read ORCA reference directory {}: {e}", dir.display()));
+    let entries = std::fs::read_dir(dir).unwrap_or_else(|e| {
+        panic!(
+            "cannot read ORCA reference directory {}: {e}",
+            dir.display()
+        )
+    });
     for entry in entries {
         let path = entry.expect("directory entry").path();
         if path.is_dir() {

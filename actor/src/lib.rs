@@ -1,0 +1,1 @@
+//! `actor`: placeholder, filled by its issue.

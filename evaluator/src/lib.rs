@@ -1,0 +1,1 @@
+//! `evaluator`: placeholder, filled by its issue.

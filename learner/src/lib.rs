@@ -1,0 +1,1 @@
+//! `learner`: placeholder, filled by its issue.

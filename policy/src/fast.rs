@@ -1,0 +1,351 @@
+//! Hand-written inference path: the same functions as the dfdx graphs in [`crate::graph`],
+//! computed straight from the flat weights with `gemm` (single-threaded) and fused bias/ReLU.
+//! Tests assert both agree to 1e-5.
+//!
+//! Two exact rewrites of CrowdNav's SARL keep the work down (both are also used by the dfdx
+//! graph, so training and inference compute the same function):
+//! - the first attention layer on `[e_i, ē]` is split into `e_i W_Lᵀ + (ē W_Rᵀ + b)`: the mean
+//!   half is computed once per sample instead of once per human;
+//! - the last (linear) layer of `mlp2` commutes with the attention-weighted sum because the
+//!   weights sum to one: `Σ_i w_i (z_i Wᵀ + b) = (Σ_i w_i z_i) Wᵀ + b`, so it runs once per sample.
+
+use crate::config::{Linear, LstmIndex, Mat, SarlIndex};
+use crate::net::StateBatch;
+use crate::{FEATURE_DIM, ROBOT_DIM};
+
+/// Reusable buffers for [`crate::ValueNet::values_into`]; also keeps the last attention weights.
+#[derive(Default, Debug, Clone)]
+pub struct Scratch {
+    layers: Vec<Vec<f32>>,
+    attention: Vec<f32>,
+}
+
+impl Scratch {
+    /// Attention weights `(B, N)` of the last SARL forward pass.
+    pub fn attention(&self) -> &[f32] {
+        &self.attention
+    }
+
+    fn buffers(&mut self, n: usize) -> &mut [Vec<f32>] {
+        if self.layers.len() < n {
+            self.layers.resize_with(n, Vec::new);
+        }
+        &mut self.layers[..n]
+    }
+}
+
+/// `c (m × w.rows, dense) += a (m × w.cols, row stride lda) · wᵀ`, `w` read from `params`.
+fn gemm_acc(m: usize, a: &[f32], lda: usize, w: Mat, params: &[f32], c: &mut [f32]) {
+    let (n, k) = (w.rows, w.cols);
+    if m == 0 || n == 0 || k == 0 {
+        return;
+    }
+    assert!(c.len() >= m * n, "gemm: output too short");
+    assert!(lda >= k && a.len() >= (m - 1) * lda + k, "gemm: lhs too short");
+    assert!(w.ld >= k && params.len() >= w.offset + (n - 1) * w.ld + k, "gemm: rhs too short");
+    // SAFETY: the asserts above keep every access of the m×k lhs (row stride lda), the k×n rhs
+    // (element (kk, j) at offset + j·ld + kk) and the dense m×n destination inside its slice;
+    // the destination does not alias the inputs (distinct borrows).
+    unsafe {
+        gemm::gemm(
+            m,
+            n,
+            k,
+            c.as_mut_ptr(),
+            1,
+            n as isize,
+            true,
+            a.as_ptr(),
+            1,
+            lda as isize,
+            params.as_ptr().add(w.offset),
+            w.ld as isize,
+            1,
+            1.0,
+            1.0,
+            false,
+            false,
+            false,
+            gemm::Parallelism::None,
+        );
+    }
+}
+
+/// Dot product with 8 independent accumulators (vectorises without fast-math).
+#[inline]
+fn dot(a: &[f32], b: &[f32]) -> f32 {
+    let mut acc = [0.0f32; 8];
+    let (ac, ar) = (a.chunks_exact(8), a.len() / 8 * 8);
+    for (x, y) in ac.zip(b.chunks_exact(8)) {
+        for j in 0..8 {
+            acc[j] += x[j] * y[j];
+        }
+    }
+    let mut s = acc.iter().sum::<f32>();
+    for (x, y) in a[ar..].iter().zip(&b[ar..]) {
+        s += x * y;
+    }
+    s
+}
+
+/// `out (rows × lin.out) = act(x Wᵀ + b)`, `x` rows of stride `ldx`.
+fn dense(x: &[f32], rows: usize, ldx: usize, lin: &Linear, p: &[f32], relu: bool, out: &mut Vec<f32>) {
+    let n = lin.out_dim();
+    let bias = &p[lin.b.offset..lin.b.offset + n];
+    out.clear();
+    if n == 1 {
+        let w = &p[lin.w.offset..lin.w.offset + lin.w.cols];
+        out.extend((0..rows).map(|r| dot(&x[r * ldx..r * ldx + lin.w.cols], w) + bias[0]));
+    } else {
+        for _ in 0..rows {
+            out.extend_from_slice(bias);
+        }
+        gemm_acc(rows, x, ldx, lin.w, p, out);
+    }
+    if relu {
+        relu_inplace(out);
+    }
+}
+
+#[inline]
+fn relu_inplace(v: &mut [f32]) {
+    for x in v {
+        *x = x.max(0.0);
+    }
+}
+
+/// CrowdNav's masked softmax, `w_i = exp(s_i)·[s_i ≠ 0] / Σ_j exp(s_j)·[s_j ≠ 0]`, computed
+/// with the maximum unmasked score subtracted first (same value, no overflow). If every score
+/// is exactly 0 (CrowdNav divides 0 by 0), the weights are uniform.
+pub(crate) fn masked_softmax(scores: &[f32], out: &mut [f32]) {
+    let shift = softmax_shift(scores);
+    match shift {
+        None => out.fill(1.0 / scores.len() as f32),
+        Some(m) => {
+            let mut sum = 0.0f32;
+            for (o, &s) in out.iter_mut().zip(scores) {
+                *o = if s != 0.0 { (s - m).exp() } else { 0.0 };
+                sum += *o;
+            }
+            for o in out.iter_mut() {
+                *o /= sum;
+            }
+        }
+    }
+}
+
+/// Maximum over the non-zero scores, `None` if all are exactly zero.
+pub(crate) fn softmax_shift(scores: &[f32]) -> Option<f32> {
+    scores
+        .iter()
+        .copied()
+        .filter(|&s| s != 0.0)
+        .fold(None, |m: Option<f32>, s| Some(m.map_or(s, |m| m.max(s))))
+}
+
+/// Runs an MLP chain on `x`, each layer into `bufs[k]`; ReLU after every layer except the last
+/// unless `last_relu`. Returns the output width.
+fn mlp_chain(
+    x: &[f32],
+    rows: usize,
+    ldx: usize,
+    layers: &[Linear],
+    p: &[f32],
+    last_relu: bool,
+    bufs: &mut [Vec<f32>],
+) -> usize {
+    let mut width = ldx;
+    for (k, lin) in layers.iter().enumerate() {
+        let relu = last_relu || k + 1 < layers.len();
+        let (done, rest) = bufs.split_at_mut(k);
+        let input: &[f32] = if k == 0 { x } else { &done[k - 1] };
+        let ld = if k == 0 { ldx } else { width };
+        dense(input, rows, ld, lin, p, relu, &mut rest[0]);
+        width = lin.out_dim();
+    }
+    width
+}
+
+/// SARL forward: `values (B)` for `states (B, N, 13)`; attention weights land in `scratch`.
+pub(crate) fn sarl_forward(
+    ix: &SarlIndex,
+    p: &[f32],
+    states: StateBatch<'_>,
+    scratch: &mut Scratch,
+    out: &mut [f32],
+) {
+    let (b, n, rows) = (states.batch(), states.humans(), states.rows());
+    let (n1, n2, na, n3) = (ix.mlp1.len(), ix.mlp2.len(), ix.attention.len(), ix.mlp3.len());
+    // Buffer plan: mlp1 | mean, g | attention | mlp2 hidden | pooled, h, head input | mlp3.
+    let total = n1 + 2 + na + (n2 - 1) + 3 + n3;
+    let mut attention = std::mem::take(&mut scratch.attention);
+    let bufs = scratch.buffers(total);
+    let (mlp1_b, rest) = bufs.split_at_mut(n1);
+    let (glob_b, rest) = rest.split_at_mut(2);
+    let (att_b, rest) = rest.split_at_mut(na);
+    let (mlp2_b, rest) = rest.split_at_mut(n2 - 1);
+    let (pool_b, mlp3_b) = rest.split_at_mut(3);
+
+    // e = mlp1(x), ReLU after every layer.
+    let d_e = mlp1_chain_out(states.data(), rows, &ix.mlp1, p, mlp1_b);
+    let e: &[f32] = &mlp1_b[n1 - 1];
+
+    // ē per sample, then g = ē W_Rᵀ + b (the mean half of attention layer 0).
+    let (mean, g) = glob_b.split_at_mut(1);
+    let (mean, g) = (&mut mean[0], &mut g[0]);
+    mean.clear();
+    mean.resize(b * d_e, 0.0);
+    let inv_n = 1.0 / n as f32;
+    for s in 0..b {
+        let m = &mut mean[s * d_e..(s + 1) * d_e];
+        for h in 0..n {
+            let row = &e[(s * n + h) * d_e..(s * n + h + 1) * d_e];
+            for (a, v) in m.iter_mut().zip(row) {
+                *a += v;
+            }
+        }
+        for a in m.iter_mut() {
+            *a *= inv_n;
+        }
+    }
+    let att0 = &ix.attention[0];
+    let d_a0 = att0.out_dim();
+    let half = Linear {
+        w: att0.w.cols(d_e, 2 * d_e),
+        b: att0.b,
+    };
+    dense(mean, b, d_e, &half, p, false, g);
+
+    // Attention layer 0 on the e half, plus g of the row's sample; then the other layers.
+    let a0 = &mut att_b[0];
+    a0.clear();
+    for s in 0..b {
+        for _ in 0..n {
+            a0.extend_from_slice(&g[s * d_a0..(s + 1) * d_a0]);
+        }
+    }
+    if d_a0 == 1 {
+        let w = &p[att0.w.offset..att0.w.offset + d_e];
+        for (r, v) in a0.iter_mut().enumerate() {
+            *v += dot(&e[r * d_e..(r + 1) * d_e], w);
+        }
+    } else {
+        gemm_acc(rows, e, d_e, att0.w.cols(0, d_e), p, a0);
+    }
+    if na > 1 {
+        relu_inplace(a0);
+        let (first, others) = att_b.split_at_mut(1);
+        mlp_chain(&first[0], rows, d_a0, &ix.attention[1..], p, false, others);
+    }
+    let scores: &[f32] = &att_b[na - 1];
+
+    // Masked softmax over each sample's humans.
+    attention.clear();
+    attention.resize(b * n, 0.0);
+    for s in 0..b {
+        masked_softmax(&scores[s * n..(s + 1) * n], &mut attention[s * n..(s + 1) * n]);
+    }
+
+    // z = mlp2 without its last layer (ReLU after each); pooled = Σ_i w_i z_i.
+    let (z, d_z): (&[f32], usize) = if n2 > 1 {
+        let d = mlp_chain(e, rows, d_e, &ix.mlp2[..n2 - 1], p, true, mlp2_b);
+        (&mlp2_b[n2 - 2], d)
+    } else {
+        (e, d_e)
+    };
+    let (pooled, rest) = pool_b.split_at_mut(1);
+    let (hbuf, head) = rest.split_at_mut(1);
+    let (pooled, hbuf, head) = (&mut pooled[0], &mut hbuf[0], &mut head[0]);
+    pooled.clear();
+    pooled.resize(b * d_z, 0.0);
+    for s in 0..b {
+        let acc = &mut pooled[s * d_z..(s + 1) * d_z];
+        for h in 0..n {
+            let w = attention[s * n + h];
+            let row = &z[(s * n + h) * d_z..(s * n + h + 1) * d_z];
+            for (a, v) in acc.iter_mut().zip(row) {
+                *a += w * v;
+            }
+        }
+    }
+    // h = pooled W2ᵀ + b (mlp2's last layer, no ReLU).
+    let last2 = &ix.mlp2[n2 - 1];
+    dense(pooled, b, d_z, last2, p, false, hbuf);
+    let d_h = last2.out_dim();
+
+    // Value head on [robot | h].
+    let d_in = ROBOT_DIM + d_h;
+    head.clear();
+    for s in 0..b {
+        head.extend_from_slice(states.robot(s));
+        head.extend_from_slice(&hbuf[s * d_h..(s + 1) * d_h]);
+    }
+    mlp_chain(head, b, d_in, &ix.mlp3, p, false, mlp3_b);
+    out.copy_from_slice(&mlp3_b[n3 - 1][..b]);
+    scratch.attention = attention;
+}
+
+fn mlp1_chain_out(x: &[f32], rows: usize, layers: &[Linear], p: &[f32], bufs: &mut [Vec<f32>]) -> usize {
+    mlp_chain(x, rows, FEATURE_DIM, layers, p, true, bufs)
+}
+
+#[inline]
+fn sigmoid(x: f32) -> f32 {
+    1.0 / (1.0 + (-x).exp())
+}
+
+/// LSTM-RL forward: `values (B)` for `states (B, N, 13)`, humans fed in the given order.
+pub(crate) fn lstm_forward(
+    ix: &LstmIndex,
+    p: &[f32],
+    states: StateBatch<'_>,
+    scratch: &mut Scratch,
+    out: &mut [f32],
+) {
+    let (b, n, hd) = (states.batch(), states.humans(), ix.hidden);
+    let nm = ix.mlp.len();
+    let bufs = scratch.buffers(4 + nm);
+    let (state_b, mlp_b) = bufs.split_at_mut(4);
+    let [gates, h, c, head] = state_b else {
+        unreachable!("four state buffers")
+    };
+    h.clear();
+    h.resize(b * hd, 0.0);
+    c.clear();
+    c.resize(b * hd, 0.0);
+    let b_ih = &p[ix.b_ih.offset..ix.b_ih.offset + 4 * hd];
+    let b_hh = &p[ix.b_hh.offset..ix.b_hh.offset + 4 * hd];
+    let bias: Vec<f32> = b_ih.iter().zip(b_hh).map(|(x, y)| x + y).collect();
+    let data = states.data();
+    for t in 0..n {
+        gates.clear();
+        for _ in 0..b {
+            gates.extend_from_slice(&bias);
+        }
+        // Row t of every sample: stride N·13.
+        gemm_acc(b, &data[t * FEATURE_DIM..], n * FEATURE_DIM, ix.w_ih, p, gates);
+        if t > 0 {
+            gemm_acc(b, h, hd, ix.w_hh, p, gates);
+        }
+        for s in 0..b {
+            let g = &gates[s * 4 * hd..(s + 1) * 4 * hd];
+            let (hs, cs) = (&mut h[s * hd..(s + 1) * hd], &mut c[s * hd..(s + 1) * hd]);
+            for j in 0..hd {
+                let i_g = sigmoid(g[j]);
+                let f_g = sigmoid(g[hd + j]);
+                let g_g = g[2 * hd + j].tanh();
+                let o_g = sigmoid(g[3 * hd + j]);
+                cs[j] = f_g * cs[j] + i_g * g_g;
+                hs[j] = o_g * cs[j].tanh();
+            }
+        }
+    }
+    let d_in = ROBOT_DIM + hd;
+    head.clear();
+    for s in 0..b {
+        head.extend_from_slice(states.robot(s));
+        head.extend_from_slice(&h[s * hd..(s + 1) * hd]);
+    }
+    mlp_chain(head, b, d_in, &ix.mlp, p, false, mlp_b);
+    out.copy_from_slice(&mlp_b[nm - 1][..b]);
+}

@@ -1,0 +1,164 @@
+//! Compact float columns and shared validation helpers.
+//!
+//! Float columns (`Vec<f32>`) travel as one MessagePack `bin` holding the little-endian IEEE-754
+//! bytes, 4 bytes per value, instead of an array of tagged floats (5 bytes per value and a
+//! per-element decode). Other languages read them with e.g. `numpy.frombuffer(b, "<f4")`.
+
+use std::fmt;
+
+use serde::de::{self, Visitor};
+use serde::{Deserializer, Serializer};
+
+use crate::error::ValidationError;
+
+/// Serialises a `Vec<f32>` as little-endian bytes in one `bin` (use with `#[serde(with)]`).
+pub(crate) mod f32_le {
+    use super::*;
+
+    pub(crate) fn serialize<S: Serializer>(values: &[f32], s: S) -> Result<S::Ok, S::Error> {
+        s.serialize_bytes(&f32_to_le_bytes(values))
+    }
+
+    pub(crate) fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<Vec<f32>, D::Error> {
+        d.deserialize_bytes(F32Visitor)
+    }
+}
+
+/// The little-endian bytes of `values` (the exact bytes that travel and that the weight
+/// checksum covers).
+pub fn f32_to_le_bytes(values: &[f32]) -> Vec<u8> {
+    let mut out = Vec::with_capacity(values.len() * 4);
+    for v in values {
+        out.extend_from_slice(&v.to_le_bytes());
+    }
+    out
+}
+
+fn f32_from_le_bytes(bytes: &[u8]) -> Option<Vec<f32>> {
+    if bytes.len() % 4 != 0 {
+        return None;
+    }
+    Some(
+        bytes
+            .chunks_exact(4)
+            .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+            .collect(),
+    )
+}
+
+struct F32Visitor;
+
+impl<'de> Visitor<'de> for F32Visitor {
+    type Value = Vec<f32>;
+
+    fn expecting(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str("a byte string of little-endian f32 values")
+    }
+
+    fn visit_bytes<E: de::Error>(self, v: &[u8]) -> Result<Self::Value, E> {
+        f32_from_le_bytes(v).ok_or_else(|| {
+            E::custom(format_args!(
+                "f32 column of {} bytes is not a multiple of 4",
+                v.len()
+            ))
+        })
+    }
+
+    fn visit_borrowed_bytes<E: de::Error>(self, v: &'de [u8]) -> Result<Self::Value, E> {
+        self.visit_bytes(v)
+    }
+
+    fn visit_byte_buf<E: de::Error>(self, v: Vec<u8>) -> Result<Self::Value, E> {
+        self.visit_bytes(&v)
+    }
+}
+
+/// Checks that every value is finite.
+pub(crate) fn check_finite(field: &'static str, values: &[f32]) -> Result<(), ValidationError> {
+    match values.iter().position(|v| !v.is_finite()) {
+        Some(index) => Err(ValidationError::NonFinite { field, index }),
+        None => Ok(()),
+    }
+}
+
+/// Checks that a scalar is finite.
+pub(crate) fn check_finite_f64(field: &'static str, value: f64) -> Result<(), ValidationError> {
+    if value.is_finite() {
+        Ok(())
+    } else {
+        Err(ValidationError::NonFinite { field, index: 0 })
+    }
+}
+
+/// Checks `len == expected`.
+pub(crate) fn check_len(
+    field: &'static str,
+    found: usize,
+    expected: usize,
+) -> Result<(), ValidationError> {
+    if found == expected {
+        Ok(())
+    } else {
+        Err(ValidationError::LengthMismatch {
+            field,
+            expected,
+            found,
+        })
+    }
+}
+
+/// Checks `value <= limit`.
+pub(crate) fn check_max(
+    field: &'static str,
+    value: u64,
+    limit: u64,
+) -> Result<(), ValidationError> {
+    if value <= limit {
+        Ok(())
+    } else {
+        Err(ValidationError::LimitExceeded {
+            field,
+            value,
+            limit,
+        })
+    }
+}
+
+/// Checks a fraction in `[0, 1]`.
+pub(crate) fn check_unit_interval(field: &'static str, value: f64) -> Result<(), ValidationError> {
+    check_finite_f64(field, value)?;
+    if (0.0..=1.0).contains(&value) {
+        Ok(())
+    } else {
+        Err(ValidationError::InvalidField {
+            field,
+            reason: format!("{value} is not in [0, 1]"),
+        })
+    }
+}
+
+/// Checks a short identifier-like name: 1..=`max_len` bytes of `[a-z0-9_./-]`.
+pub(crate) fn check_name(
+    field: &'static str,
+    name: &str,
+    max_len: usize,
+) -> Result<(), ValidationError> {
+    let invalid = |reason: String| ValidationError::InvalidField { field, reason };
+    if name.is_empty() {
+        return Err(invalid("empty".into()));
+    }
+    if name.len() > max_len {
+        return Err(invalid(format!(
+            "{} bytes, longer than {max_len}",
+            name.len()
+        )));
+    }
+    if let Some(c) = name.chars().find(|c| {
+        !(c.is_ascii_lowercase() || c.is_ascii_digit() || matches!(c, '_' | '.' | '/' | '-'))
+    }) {
+        return Err(invalid(format!(
+            "character {c:?} not allowed (use [a-z0-9_./-])"
+        )));
+    }
+    Ok(())
+}

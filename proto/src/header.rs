@@ -1,0 +1,121 @@
+//! The envelope every message travels in: a [`Header`] and a typed [`Body`].
+
+use std::fmt;
+
+use serde::de::DeserializeOwned;
+use serde::{Deserialize, Serialize};
+
+use crate::error::ValidationError;
+use crate::ids::{RunId, SenderId};
+use crate::PROTOCOL_VERSION;
+
+/// Which message a header announces. Serialised as a kebab-case string (`"transition-batch"`),
+/// so a tool subscribed to `fsrl/<run>/**` can dispatch on `msg["header"]["kind"]`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum MessageKind {
+    /// [`crate::TransitionBatch`].
+    TransitionBatch,
+    /// [`crate::Weights`].
+    Weights,
+    /// [`crate::EvalReport`].
+    EvalReport,
+    /// [`crate::Metrics`].
+    Metrics,
+    /// [`crate::Status`].
+    Status,
+    /// [`crate::Ack`].
+    Ack,
+    /// [`crate::Control`].
+    Control,
+}
+
+impl MessageKind {
+    /// The wire name.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            MessageKind::TransitionBatch => "transition-batch",
+            MessageKind::Weights => "weights",
+            MessageKind::EvalReport => "eval-report",
+            MessageKind::Metrics => "metrics",
+            MessageKind::Status => "status",
+            MessageKind::Ack => "ack",
+            MessageKind::Control => "control",
+        }
+    }
+}
+
+impl fmt::Display for MessageKind {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
+/// Carried by every message. `protocol_version` is always the first field, so a receiver can
+/// tell a message from another protocol version from garbage.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Header {
+    /// [`PROTOCOL_VERSION`] of the sender.
+    pub protocol_version: u16,
+    /// What the body is.
+    pub kind: MessageKind,
+    /// The run this message belongs to.
+    pub run: RunId,
+    /// Who sent it.
+    pub sender: SenderId,
+    /// Per (sender, topic) sequence number, starting at 0, +1 per message published.
+    pub seq: u64,
+    /// Version of the policy weights that produced the content (0 before any weights, e.g.
+    /// imitation episodes of the ORCA demonstrator). For [`crate::Weights`] it equals the
+    /// weights' own version.
+    pub policy_version: u64,
+}
+
+impl Header {
+    /// A header for a message of kind `B::KIND` with the current protocol version.
+    pub fn new<B: Body>(run: RunId, sender: SenderId, seq: u64, policy_version: u64) -> Self {
+        Self {
+            protocol_version: PROTOCOL_VERSION,
+            kind: B::KIND,
+            run,
+            sender,
+            seq,
+            policy_version,
+        }
+    }
+}
+
+/// The body of a message: one type per [`MessageKind`].
+pub trait Body: Serialize + DeserializeOwned + Clone + fmt::Debug + Send + Sync + 'static {
+    /// The kind announced in the header.
+    const KIND: MessageKind;
+    /// Checks every invariant (dimensions, finiteness, limits, checksums). Called by
+    /// [`crate::encode`] and [`crate::decode`].
+    fn validate(&self) -> Result<(), ValidationError>;
+}
+
+/// A header and a body: what is encoded, published and received.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Message<B> {
+    /// Envelope.
+    pub header: Header,
+    /// Payload.
+    pub body: B,
+}
+
+impl<B: Body> Message<B> {
+    /// A message with a fresh header (see [`Header::new`]).
+    pub fn new(run: RunId, sender: SenderId, seq: u64, policy_version: u64, body: B) -> Self {
+        Self {
+            header: Header::new::<B>(run, sender, seq, policy_version),
+            body,
+        }
+    }
+}
+
+/// Borrowed view with the same serialised layout as [`Message`], so encoding never clones a body.
+#[derive(Serialize)]
+pub(crate) struct MessageRef<'a, B> {
+    pub(crate) header: &'a Header,
+    pub(crate) body: &'a B,
+}

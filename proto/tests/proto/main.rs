@@ -1,0 +1,6 @@
+//! Integration tests of the wire protocol: round trips, typed errors on malformed input, a
+//! randomized robustness run and a cross-language (Python `msgpack`) check.
+
+mod malformed;
+mod python;
+mod roundtrip;
