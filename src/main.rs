@@ -2,7 +2,9 @@
 //! policies. The binary is thin: parse arguments, install logging, run a subcommand.
 
 mod cmd_sim;
+mod cmd_train;
 mod config;
+mod report;
 mod svg;
 
 use std::process::ExitCode;
@@ -24,6 +26,8 @@ struct Cli {
 enum Command {
     /// Run the ORCA robot on the six settings: metrics table and an episode picture.
     Sim(cmd_sim::SimArgs),
+    /// Train one method on one setting: imitation, then deep V-learning, then evaluation.
+    Train(cmd_train::TrainArgs),
 }
 
 fn main() -> ExitCode {
@@ -37,6 +41,7 @@ fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Sim(args) => cmd_sim::run(args),
+        Command::Train(args) => cmd_train::run(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

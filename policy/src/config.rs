@@ -326,16 +326,6 @@ impl Mat {
         }
     }
 
-    /// Rows `start..end` of this matrix.
-    pub fn rows(self, start: usize, end: usize) -> Self {
-        Mat {
-            offset: self.offset + start * self.ld,
-            rows: end - start,
-            cols: self.cols,
-            ld: self.ld,
-        }
-    }
-
     /// Copies the values out, row-major and dense.
     pub fn gather(&self, params: &[f32]) -> Vec<f32> {
         let mut out = Vec::with_capacity(self.rows * self.cols);
@@ -455,12 +445,24 @@ mod tests {
         let names: Vec<&str> = l.specs().iter().map(|s| s.name.as_str()).collect();
         assert_eq!(names[0], "mlp1.0.weight");
         assert_eq!(names[4], "mlp2.0.weight");
-        assert_eq!(l.get("attention.0.weight").map(|s| (s.rows, s.cols)), Some((100, 200)));
-        assert_eq!(l.get("mlp3.0.weight").map(|s| (s.rows, s.cols)), Some((150, 56)));
+        assert_eq!(
+            l.get("attention.0.weight").map(|s| (s.rows, s.cols)),
+            Some((100, 200))
+        );
+        assert_eq!(
+            l.get("mlp3.0.weight").map(|s| (s.rows, s.cols)),
+            Some((150, 56))
+        );
         assert_eq!(names.last(), Some(&"mlp3.6.bias"));
         let l = NetConfig::lstm_rl().layout();
-        assert_eq!(l.get("lstm.weight_ih_l0").map(|s| (s.rows, s.cols)), Some((200, 13)));
-        assert_eq!(l.specs().last().map(|s| s.name.as_str()), Some("lstm.bias_hh_l0"));
+        assert_eq!(
+            l.get("lstm.weight_ih_l0").map(|s| (s.rows, s.cols)),
+            Some((200, 13))
+        );
+        assert_eq!(
+            l.specs().last().map(|s| s.name.as_str()),
+            Some("lstm.bias_hh_l0")
+        );
     }
 
     #[test]

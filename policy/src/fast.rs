@@ -10,6 +10,7 @@
 //!   weights sum to one: `Σ_i w_i (z_i Wᵀ + b) = (Σ_i w_i z_i) Wᵀ + b`, so it runs once per sample.
 
 use crate::config::{Linear, LstmIndex, Mat, SarlIndex};
+use crate::kernels::{dot, gemm, relu_inplace, Threads, View};
 use crate::net::StateBatch;
 use crate::{FEATURE_DIM, ROBOT_DIM};
 
@@ -36,60 +37,30 @@ impl Scratch {
 
 /// `c (m × w.rows, dense) += a (m × w.cols, row stride lda) · wᵀ`, `w` read from `params`.
 fn gemm_acc(m: usize, a: &[f32], lda: usize, w: Mat, params: &[f32], c: &mut [f32]) {
-    let (n, k) = (w.rows, w.cols);
-    if m == 0 || n == 0 || k == 0 {
-        return;
-    }
-    assert!(c.len() >= m * n, "gemm: output too short");
-    assert!(lda >= k && a.len() >= (m - 1) * lda + k, "gemm: lhs too short");
-    assert!(w.ld >= k && params.len() >= w.offset + (n - 1) * w.ld + k, "gemm: rhs too short");
-    // SAFETY: the asserts above keep every access of the m×k lhs (row stride lda), the k×n rhs
-    // (element (kk, j) at offset + j·ld + kk) and the dense m×n destination inside its slice;
-    // the destination does not alias the inputs (distinct borrows).
-    unsafe {
-        gemm::gemm(
-            m,
-            n,
-            k,
-            c.as_mut_ptr(),
-            1,
-            n as isize,
-            true,
-            a.as_ptr(),
-            1,
-            lda as isize,
-            params.as_ptr().add(w.offset),
-            w.ld as isize,
-            1,
-            1.0,
-            1.0,
-            false,
-            false,
-            false,
-            gemm::Parallelism::None,
-        );
-    }
-}
-
-/// Dot product with 8 independent accumulators (vectorises without fast-math).
-#[inline]
-fn dot(a: &[f32], b: &[f32]) -> f32 {
-    let mut acc = [0.0f32; 8];
-    let (ac, ar) = (a.chunks_exact(8), a.len() / 8 * 8);
-    for (x, y) in ac.zip(b.chunks_exact(8)) {
-        for j in 0..8 {
-            acc[j] += x[j] * y[j];
-        }
-    }
-    let mut s = acc.iter().sum::<f32>();
-    for (x, y) in a[ar..].iter().zip(&b[ar..]) {
-        s += x * y;
-    }
-    s
+    let wt = View::transposed(&params[w.offset..], w.ld);
+    gemm(
+        m,
+        w.rows,
+        w.cols,
+        c,
+        w.rows,
+        View::rows(a, lda),
+        wt,
+        true,
+        Threads::One,
+    );
 }
 
 /// `out (rows × lin.out) = act(x Wᵀ + b)`, `x` rows of stride `ldx`.
-fn dense(x: &[f32], rows: usize, ldx: usize, lin: &Linear, p: &[f32], relu: bool, out: &mut Vec<f32>) {
+fn dense(
+    x: &[f32],
+    rows: usize,
+    ldx: usize,
+    lin: &Linear,
+    p: &[f32],
+    relu: bool,
+    out: &mut Vec<f32>,
+) {
     let n = lin.out_dim();
     let bias = &p[lin.b.offset..lin.b.offset + n];
     out.clear();
@@ -104,13 +75,6 @@ fn dense(x: &[f32], rows: usize, ldx: usize, lin: &Linear, p: &[f32], relu: bool
     }
     if relu {
         relu_inplace(out);
-    }
-}
-
-#[inline]
-fn relu_inplace(v: &mut [f32]) {
-    for x in v {
-        *x = x.max(0.0);
     }
 }
 
@@ -175,7 +139,12 @@ pub(crate) fn sarl_forward(
     out: &mut [f32],
 ) {
     let (b, n, rows) = (states.batch(), states.humans(), states.rows());
-    let (n1, n2, na, n3) = (ix.mlp1.len(), ix.mlp2.len(), ix.attention.len(), ix.mlp3.len());
+    let (n1, n2, na, n3) = (
+        ix.mlp1.len(),
+        ix.mlp2.len(),
+        ix.attention.len(),
+        ix.mlp3.len(),
+    );
     // Buffer plan: mlp1 | mean, g | attention | mlp2 hidden | pooled, h, head input | mlp3.
     let total = n1 + 2 + na + (n2 - 1) + 3 + n3;
     let mut attention = std::mem::take(&mut scratch.attention);
@@ -243,7 +212,10 @@ pub(crate) fn sarl_forward(
     attention.clear();
     attention.resize(b * n, 0.0);
     for s in 0..b {
-        masked_softmax(&scores[s * n..(s + 1) * n], &mut attention[s * n..(s + 1) * n]);
+        masked_softmax(
+            &scores[s * n..(s + 1) * n],
+            &mut attention[s * n..(s + 1) * n],
+        );
     }
 
     // z = mlp2 without its last layer (ReLU after each); pooled = Σ_i w_i z_i.
@@ -285,13 +257,27 @@ pub(crate) fn sarl_forward(
     scratch.attention = attention;
 }
 
-fn mlp1_chain_out(x: &[f32], rows: usize, layers: &[Linear], p: &[f32], bufs: &mut [Vec<f32>]) -> usize {
+fn mlp1_chain_out(
+    x: &[f32],
+    rows: usize,
+    layers: &[Linear],
+    p: &[f32],
+    bufs: &mut [Vec<f32>],
+) -> usize {
     mlp_chain(x, rows, FEATURE_DIM, layers, p, true, bufs)
 }
 
 #[inline]
 fn sigmoid(x: f32) -> f32 {
     1.0 / (1.0 + (-x).exp())
+}
+
+/// `tanh` through one `exp`: `sign(x) (1 − e^{−2|x|}) / (1 + e^{−2|x|})`. Absolute error about
+/// 1e-7 (libm's `tanhf` goes through the much slower `expm1f`).
+#[inline]
+fn tanh(x: f32) -> f32 {
+    let e = (-2.0 * x.abs()).exp();
+    ((1.0 - e) / (1.0 + e)).copysign(x)
 }
 
 /// LSTM-RL forward: `values (B)` for `states (B, N, 13)`, humans fed in the given order.
@@ -323,7 +309,14 @@ pub(crate) fn lstm_forward(
             gates.extend_from_slice(&bias);
         }
         // Row t of every sample: stride N·13.
-        gemm_acc(b, &data[t * FEATURE_DIM..], n * FEATURE_DIM, ix.w_ih, p, gates);
+        gemm_acc(
+            b,
+            &data[t * FEATURE_DIM..],
+            n * FEATURE_DIM,
+            ix.w_ih,
+            p,
+            gates,
+        );
         if t > 0 {
             gemm_acc(b, h, hd, ix.w_hh, p, gates);
         }
@@ -333,10 +326,10 @@ pub(crate) fn lstm_forward(
             for j in 0..hd {
                 let i_g = sigmoid(g[j]);
                 let f_g = sigmoid(g[hd + j]);
-                let g_g = g[2 * hd + j].tanh();
+                let g_g = tanh(g[2 * hd + j]);
                 let o_g = sigmoid(g[3 * hd + j]);
                 cs[j] = f_g * cs[j] + i_g * g_g;
-                hs[j] = o_g * cs[j].tanh();
+                hs[j] = o_g * tanh(cs[j]);
             }
         }
     }

@@ -15,6 +15,11 @@ pub mod config;
 mod error;
 mod fast;
 pub mod graph;
+pub mod joint;
+mod kernels;
+pub mod lookahead;
+pub mod method;
+pub mod rollout;
 mod net;
 pub mod optim;
 #[cfg(test)]

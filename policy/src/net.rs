@@ -171,7 +171,11 @@ impl ValueNet {
     /// [`ValueNet::values`] without allocating: `out` must hold `B` values (panics otherwise);
     /// `scratch` is reused between calls. Single-threaded.
     pub fn values_into(&self, states: StateBatch<'_>, scratch: &mut Scratch, out: &mut [f32]) {
-        assert_eq!(out.len(), states.batch(), "output length must equal the batch size");
+        assert_eq!(
+            out.len(),
+            states.batch(),
+            "output length must equal the batch size"
+        );
         match &self.index {
             NetIndex::Sarl(ix) => fast::sarl_forward(ix, &self.params, states, scratch, out),
             NetIndex::Lstm(ix) => fast::lstm_forward(ix, &self.params, states, scratch, out),

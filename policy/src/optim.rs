@@ -50,7 +50,12 @@ impl Adam {
     }
 
     /// Restores a state (e.g. from a checkpoint).
-    pub fn from_state(config: AdamConfig, m: Vec<f32>, v: Vec<f32>, step: u64) -> Result<Self, PolicyError> {
+    pub fn from_state(
+        config: AdamConfig,
+        m: Vec<f32>,
+        v: Vec<f32>,
+        step: u64,
+    ) -> Result<Self, PolicyError> {
         if m.len() != v.len() {
             return Err(PolicyError::Length {
                 what: "Adam second moment",
@@ -94,13 +99,23 @@ impl Adam {
         assert_eq!(params.len(), self.m.len(), "Adam: parameter count changed");
         assert_eq!(grad.len(), self.m.len(), "Adam: gradient length");
         self.step += 1;
-        let AdamConfig { lr, beta1, beta2, eps } = self.config;
+        let AdamConfig {
+            lr,
+            beta1,
+            beta2,
+            eps,
+        } = self.config;
         let t = self.step as f64;
         let bc1 = 1.0 - (beta1 as f64).powf(t);
         let bc2 = 1.0 - (beta2 as f64).powf(t);
         let step_size = (lr as f64 / bc1) as f32;
         let inv_sqrt_bc2 = (1.0 / bc2.sqrt()) as f32;
-        for (((p, &g), m), v) in params.iter_mut().zip(grad).zip(&mut self.m).zip(&mut self.v) {
+        for (((p, &g), m), v) in params
+            .iter_mut()
+            .zip(grad)
+            .zip(&mut self.m)
+            .zip(&mut self.v)
+        {
             *m = beta1 * *m + (1.0 - beta1) * g;
             *v = beta2 * *v + (1.0 - beta2) * g * g;
             *p -= step_size * *m / (v.sqrt() * inv_sqrt_bc2 + eps);

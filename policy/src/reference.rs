@@ -6,8 +6,12 @@ use crate::config::{NetConfig, ParamLayout};
 use crate::{FEATURE_DIM, ROBOT_DIM};
 
 fn linear(layout: &ParamLayout, p: &[f64], block: &str, k: usize, x: &[f64]) -> Vec<f64> {
-    let w = layout.get(&format!("{block}.{}.weight", 2 * k)).expect("weight");
-    let b = layout.get(&format!("{block}.{}.bias", 2 * k)).expect("bias");
+    let w = layout
+        .get(&format!("{block}.{}.weight", 2 * k))
+        .expect("weight");
+    let b = layout
+        .get(&format!("{block}.{}.bias", 2 * k))
+        .expect("bias");
     assert_eq!(w.cols, x.len());
     (0..w.rows)
         .map(|r| {
@@ -18,7 +22,14 @@ fn linear(layout: &ParamLayout, p: &[f64], block: &str, k: usize, x: &[f64]) -> 
 }
 
 /// CrowdNav `mlp(in, dims, last_relu)`.
-fn mlp(layout: &ParamLayout, p: &[f64], block: &str, layers: usize, last_relu: bool, x: &[f64]) -> Vec<f64> {
+fn mlp(
+    layout: &ParamLayout,
+    p: &[f64],
+    block: &str,
+    layers: usize,
+    last_relu: bool,
+    x: &[f64],
+) -> Vec<f64> {
     let mut x = x.to_vec();
     for k in 0..layers {
         x = linear(layout, p, block, k, &x);
@@ -34,7 +45,13 @@ fn sigmoid(x: f64) -> f64 {
 }
 
 /// Values `(B)` and, for SARL, attention weights `(B·N)`.
-pub(crate) fn forward(config: &NetConfig, p: &[f64], data: &[f32], b: usize, n: usize) -> (Vec<f64>, Vec<f64>) {
+pub(crate) fn forward(
+    config: &NetConfig,
+    p: &[f64],
+    data: &[f32],
+    b: usize,
+    n: usize,
+) -> (Vec<f64>, Vec<f64>) {
     let layout = config.layout();
     let rows: Vec<Vec<f64>> = data
         .chunks_exact(FEATURE_DIM)
@@ -94,7 +111,8 @@ pub(crate) fn forward(config: &NetConfig, p: &[f64], data: &[f32], b: usize, n: 
                 for x in sample {
                     let gates: Vec<f64> = (0..4 * hd)
                         .map(|r| {
-                            let wi = &p[w_ih.offset + r * FEATURE_DIM..w_ih.offset + (r + 1) * FEATURE_DIM];
+                            let wi = &p[w_ih.offset + r * FEATURE_DIM
+                                ..w_ih.offset + (r + 1) * FEATURE_DIM];
                             let wh = &p[w_hh.offset + r * hd..w_hh.offset + (r + 1) * hd];
                             p[b_ih.offset + r]
                                 + p[b_hh.offset + r]
@@ -123,7 +141,14 @@ pub(crate) fn forward(config: &NetConfig, p: &[f64], data: &[f32], b: usize, n: 
 }
 
 /// `mean_b (V(s_b) − y_b)²` in f64.
-pub(crate) fn mse(config: &NetConfig, p: &[f64], data: &[f32], b: usize, n: usize, targets: &[f32]) -> f64 {
+pub(crate) fn mse(
+    config: &NetConfig,
+    p: &[f64],
+    data: &[f32],
+    b: usize,
+    n: usize,
+    targets: &[f32],
+) -> f64 {
     let (v, _) = forward(config, p, data, b, n);
     v.iter()
         .zip(targets)

@@ -40,7 +40,10 @@ pub(crate) fn random_states(b: usize, n: usize, seed: u64) -> Vec<f32> {
 
 fn max_abs_diff(a: &[f32], b: &[f32]) -> f32 {
     assert_eq!(a.len(), b.len());
-    a.iter().zip(b).map(|(x, y)| (x - y).abs()).fold(0.0, f32::max)
+    a.iter()
+        .zip(b)
+        .map(|(x, y)| (x - y).abs())
+        .fold(0.0, f32::max)
 }
 
 fn nets() -> Vec<ValueNet> {
@@ -52,8 +55,14 @@ fn nets() -> Vec<ValueNet> {
 
 #[test]
 fn built_networks_have_crowdnav_parameter_counts() {
-    assert_eq!(ValueNet::new(NetConfig::sarl(), 0).unwrap().num_params(), 96_502);
-    assert_eq!(ValueNet::new(NetConfig::lstm_rl(), 0).unwrap().num_params(), 46_851);
+    assert_eq!(
+        ValueNet::new(NetConfig::sarl(), 0).unwrap().num_params(),
+        96_502
+    );
+    assert_eq!(
+        ValueNet::new(NetConfig::lstm_rl(), 0).unwrap().num_params(),
+        46_851
+    );
 }
 
 #[test]
@@ -93,9 +102,18 @@ fn fast_dfdx_and_reference_forward_agree() {
             let (reference, _) = reference::forward(net.config(), &p64, &data, b, n);
             let reference: Vec<f32> = reference.iter().map(|&v| v as f32).collect();
             let kind = net.kind().name();
-            assert!(max_abs_diff(&fast, &graph) <= 1e-5, "{kind} {b}x{n}: fast vs dfdx");
-            assert!(max_abs_diff(&fast, &reference) <= 1e-5, "{kind} {b}x{n}: fast vs ref");
-            assert!(fast.iter().any(|v| v.abs() > 1e-3), "{kind}: trivial outputs");
+            assert!(
+                max_abs_diff(&fast, &graph) <= 1e-5,
+                "{kind} {b}x{n}: fast vs dfdx"
+            );
+            assert!(
+                max_abs_diff(&fast, &reference) <= 1e-5,
+                "{kind} {b}x{n}: fast vs ref"
+            );
+            assert!(
+                fast.iter().any(|v| v.abs() > 1e-3),
+                "{kind}: trivial outputs"
+            );
         }
     }
 }
@@ -142,7 +160,10 @@ fn attention_weights_sum_to_one_and_match() {
     assert!(max_abs_diff(&att, &ref_att) < 1e-6);
     // Not uniform: the weights depend on the humans.
     assert!(att.iter().any(|&w| (w - 1.0 / n as f32).abs() > 1e-3));
-    assert!(ValueNet::new(NetConfig::lstm_rl(), 0).unwrap().attention(&scratch).is_none());
+    assert!(ValueNet::new(NetConfig::lstm_rl(), 0)
+        .unwrap()
+        .attention(&scratch)
+        .is_none());
 }
 
 #[test]
@@ -182,7 +203,12 @@ fn check_gradients(config: NetConfig, b: usize, n: usize) {
     let mut net = ValueNet::new(config, 21).unwrap();
     // Sharpen SARL's attention so that its layers get gradients well above rounding noise.
     let mut p = net.params().to_vec();
-    for spec in net.layout().specs().iter().filter(|s| s.name.starts_with("attention")) {
+    for spec in net
+        .layout()
+        .specs()
+        .iter()
+        .filter(|s| s.name.starts_with("attention"))
+    {
         p[spec.range()].iter_mut().for_each(|v| *v *= 4.0);
     }
     net.set_params(&p).unwrap();
@@ -195,7 +221,10 @@ fn check_gradients(config: NetConfig, b: usize, n: usize) {
 
     let p64: Vec<f64> = net.params().iter().map(|&v| v as f64).collect();
     let ref_loss = reference::mse(net.config(), &p64, &data, b, n, &targets);
-    assert!((loss as f64 - ref_loss).abs() < 1e-5 * ref_loss.max(1.0), "loss {loss} vs {ref_loss}");
+    assert!(
+        (loss as f64 - ref_loss).abs() < 1e-5 * ref_loss.max(1.0),
+        "loss {loss} vs {ref_loss}"
+    );
 
     let h = 1e-6;
     let mut checked = Vec::new();
@@ -207,7 +236,12 @@ fn check_gradients(config: NetConfig, b: usize, n: usize) {
             let up = reference::mse(net.config(), &p, &data, b, n, &targets);
             p[i] -= 2.0 * h;
             let down = reference::mse(net.config(), &p, &data, b, n, &targets);
-            checked.push((spec.name.clone(), i, (up - down) / (2.0 * h), grad[i] as f64));
+            checked.push((
+                spec.name.clone(),
+                i,
+                (up - down) / (2.0 * h),
+                grad[i] as f64,
+            ));
         }
     }
     let scale = checked.iter().fold(0.0f64, |m, c| m.max(c.2.abs()));
@@ -219,19 +253,40 @@ fn check_gradients(config: NetConfig, b: usize, n: usize) {
         let scale_t = mine.iter().fold(0.0f64, |m, c| m.max(c.2.abs()));
         for (name, i, fd, g) in &mine {
             let tol = 2e-3 * fd.abs().max(g.abs()) + 1e-4 * scale_t + 1e-9;
-            assert!((fd - g).abs() <= tol, "{name}[{i}]: dfdx {g:e} vs finite difference {fd:e}");
+            assert!(
+                (fd - g).abs() <= tol,
+                "{name}[{i}]: dfdx {g:e} vs finite difference {fd:e}"
+            );
             if fd.abs() > 1e-6 * scale {
                 nontrivial += 1;
             }
         }
         // The score bias cancels in the softmax: its gradient is exactly zero.
-        let score_bias = spec.name.starts_with("attention") && spec.name.ends_with("bias") && spec.rows == 1;
-        assert!(scale_t > 1e-7 || score_bias, "{}: gradient scale {scale_t:e}", spec.name);
+        let score_bias =
+            spec.name.starts_with("attention") && spec.name.ends_with("bias") && spec.rows == 1;
+        assert!(
+            scale_t > 1e-7 || score_bias,
+            "{}: gradient scale {scale_t:e}",
+            spec.name
+        );
     }
-    assert!(nontrivial * 2 > checked.len(), "only {nontrivial}/{} non-trivial", checked.len());
+    assert!(
+        nontrivial * 2 > checked.len(),
+        "only {nontrivial}/{} non-trivial",
+        checked.len()
+    );
     // Every tensor but the score bias receives some gradient.
-    for spec in net.layout().specs().iter().filter(|s| !(s.name.starts_with("attention") && s.rows == 1 && s.cols == 1)) {
-        assert!(grad[spec.range()].iter().any(|&g| g != 0.0), "{} has no gradient", spec.name);
+    for spec in net
+        .layout()
+        .specs()
+        .iter()
+        .filter(|s| !(s.name.starts_with("attention") && s.rows == 1 && s.cols == 1))
+    {
+        assert!(
+            grad[spec.range()].iter().any(|&g| g != 0.0),
+            "{} has no gradient",
+            spec.name
+        );
     }
 }
 

@@ -171,7 +171,10 @@ mod tests {
             .map(|s| {
                 let rows = &data[s * n * 13..(s + 1) * n * 13];
                 let d_goal = rows[0];
-                let closest = rows.chunks_exact(13).map(|r| r[11]).fold(f32::MAX, f32::min);
+                let closest = rows
+                    .chunks_exact(13)
+                    .map(|r| r[11])
+                    .fold(f32::MAX, f32::min);
                 0.8 * (-d_goal / 4.0).exp() - 0.5 * (-closest).exp()
             })
             .collect()
@@ -181,12 +184,17 @@ mod tests {
         let (b, n, batches) = (100, 5, 5);
         let data = random_states(b * batches, n, 17);
         let targets = synthetic_targets(&data, b * batches, n);
-        let mut trainer = Trainer::new(ValueNet::new(config, 3).unwrap(), AdamConfig::with_lr(1e-3));
+        let mut trainer =
+            Trainer::new(ValueNet::new(config, 3).unwrap(), AdamConfig::with_lr(1e-3));
         let stride = b * n * 13;
         let full = StateBatch::new(&data, b * batches, n).unwrap();
         let mse = |net: &ValueNet| {
             let v = net.values(full);
-            v.iter().zip(&targets).map(|(v, y)| (v - y).powi(2)).sum::<f32>() / v.len() as f32
+            v.iter()
+                .zip(&targets)
+                .map(|(v, y)| (v - y).powi(2))
+                .sum::<f32>()
+                / v.len() as f32
         };
         let before = mse(trainer.online());
         for step in 0..300 {
@@ -196,8 +204,11 @@ mod tests {
             assert!(loss.is_finite());
         }
         let after = mse(trainer.online());
-        eprintln!("RATIO {} {before} {after}", before / after);
-        assert!(after < before / 10.0, "{}: loss {before} → {after}", trainer.online().kind().name());
+        assert!(
+            after < before / 10.0,
+            "{}: loss {before} → {after}",
+            trainer.online().kind().name()
+        );
         // The target network has not moved until synced.
         assert_ne!(trainer.online().params(), trainer.target().params());
         trainer.sync_target();
@@ -219,13 +230,22 @@ mod tests {
         let (b, n) = (8, 4);
         let s = random_states(b, n, 1);
         let s2 = random_states(b, n, 2);
-        let (states, next) = (StateBatch::new(&s, b, n).unwrap(), StateBatch::new(&s2, b, n).unwrap());
-        let mut trainer = Trainer::new(ValueNet::new(NetConfig::sarl(), 0).unwrap(), AdamConfig::with_lr(1e-3));
+        let (states, next) = (
+            StateBatch::new(&s, b, n).unwrap(),
+            StateBatch::new(&s2, b, n).unwrap(),
+        );
+        let mut trainer = Trainer::new(
+            ValueNet::new(NetConfig::sarl(), 0).unwrap(),
+            AdamConfig::with_lr(1e-3),
+        );
         let rewards = vec![0.5; b];
         let mut discounts = vec![0.9f32.powf(0.25); b];
         discounts[0] = 0.0;
         let v_next = trainer.target().values(next);
-        let y = trainer.td_targets(next, &rewards, &discounts).unwrap().to_vec();
+        let y = trainer
+            .td_targets(next, &rewards, &discounts)
+            .unwrap()
+            .to_vec();
         assert_eq!(y[0], 0.5);
         assert!((y[1] - (0.5 + discounts[1] * v_next[1])).abs() < 1e-6);
         let before = trainer.online().params().to_vec();
@@ -233,7 +253,9 @@ mod tests {
         assert!(loss.is_finite());
         assert_ne!(trainer.online().params(), &before[..]);
         assert_eq!(trainer.target().params(), &before[..]);
-        assert!(trainer.td_step(states, next, &rewards[..3], &discounts).is_err());
+        assert!(trainer
+            .td_step(states, next, &rewards[..3], &discounts)
+            .is_err());
     }
 
     #[test]
@@ -241,7 +263,10 @@ mod tests {
         let (b, n) = (4, 3);
         let s = random_states(b, n, 1);
         let states = StateBatch::new(&s, b, n).unwrap();
-        let mut trainer = Trainer::new(ValueNet::new(NetConfig::sarl(), 0).unwrap(), AdamConfig::with_lr(1e-3));
+        let mut trainer = Trainer::new(
+            ValueNet::new(NetConfig::sarl(), 0).unwrap(),
+            AdamConfig::with_lr(1e-3),
+        );
         let before = trainer.online().params().to_vec();
         let err = trainer.fit(states, &[0.0, f32::NAN, 0.0, 0.0]).unwrap_err();
         assert!(matches!(err, PolicyError::NonFinite(_)), "{err}");

@@ -1,1 +1,842 @@
-//! `transport`: placeholder, filled by its issue.
+//! `transport`: typed publish/subscribe of [`proto`] messages, latest-value delivery for
+//! weights and control, and liveliness, over zenoh (any number of machines) or iceoryx2
+//! (zero-copy shared memory on one machine). The only crate (with the binaries) that opens a
+//! zenoh session or an iceoryx2 node.
+//!
+//! # One interface, two backends
+//!
+//! [`Transport::open`] takes a [`TransportConfig`]; `data_plane` picks the backend of the
+//! *data* topics ([`proto::Plane::Data`]: transitions, weights, control, acks):
+//!
+//! | | zenoh ([`DataPlane::Zenoh`], default) | iceoryx2 ([`DataPlane::Iceoryx2`]) |
+//! |---|---|---|
+//! | data topics | zenoh pub/sub | iceoryx2 `[u8]` pub/sub in shared memory (one copy in, zero-copy out) |
+//! | telemetry topics (metrics, status, eval) | zenoh | zenoh (loopback) |
+//! | liveliness | zenoh liveliness tokens | zenoh liveliness tokens |
+//! | latest value (late joiner) | queryable serving the last value + query at subscribe | service history of 1 + join event → `update_connections` |
+//! | reliable | `CongestionControl::Block`, reliable links | no overflow, `RetryUntilDelivered` up to `publish_timeout_ms`, then [`TransportError::PublishTimeout`] |
+//! | best effort | `CongestionControl::Drop`, express | overflow (oldest dropped) |
+//!
+//! Liveliness and telemetry always ride on zenoh, even with the iceoryx2 data plane, so that
+//! other tools (Python `eclipse-zenoh`, `z_sub`) see metrics and membership, and because zenoh
+//! tokens give immediate join/leave events (a crashed process's TCP link closes). iceoryx2's
+//! own crash handling is still used for its resources: [`Transport::cleanup_stale`] (also run
+//! automatically when a node is created or a service opened) removes the shared memory and
+//! port slots of dead processes.
+//!
+//! # API
+//!
+//! * [`Transport::publisher`] / [`Transport::subscriber`]: reliable or best-effort topics
+//!   (transitions, acks, eval reports, metrics, status). [`Publisher::publish`] stamps the
+//!   header (run, sender, sequence number, policy version), encodes and sends;
+//!   [`Subscriber::recv_timeout`] decodes and validates.
+//! * [`Transport::latest_publisher`] / [`Transport::latest_subscriber`]: latest-value topics
+//!   (weights, control). [`LatestSubscriber::latest`] is the newest value (a late joiner has
+//!   the current one at once); [`LatestSubscriber::next`] waits for a newer one.
+//! * [`Transport::declare_alive`] (drop the [`AliveToken`] to leave), [`Transport::watch_alive`]
+//!   ([`AliveEvent::Joined`] / [`AliveEvent::Left`], current members first),
+//!   [`Transport::alive_members`] (snapshot).
+//! * [`Transport::rejected_count`]: malformed, wrong-version or foreign-run messages received
+//!   (each logged once per source with `tracing::warn!`, then only counted, and skipped).
+//!
+//! Every call is blocking (bounded by a timeout where it waits); all handles are `Send + Sync`.
+//! Roles call them from their own threads (simulation and training never run on an async
+//! executor); from async code use `spawn_blocking`. zenoh runs its own runtime internally.
+
+mod config;
+mod error;
+mod iox;
+mod reject;
+mod zenoh_impl;
+
+use std::collections::{BTreeSet, VecDeque};
+use std::hash::{BuildHasher, Hasher};
+use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
+use std::sync::{Arc, Condvar, Mutex, MutexGuard};
+use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
+
+use proto::{keys, Body, Delivery, Member, Message, Plane, RunId, SenderId, Topic};
+use zenoh::sample::SampleKind;
+
+pub use config::{DataPlane, IceoryxConfig, TransportConfig, ZenohConfig, ZenohMode};
+pub use error::TransportError;
+pub use iox::StaleCleanup;
+
+use iox::{IoxNode, IoxPublisher, IoxSubscriber};
+use reject::{RejectCounter, Rejection, Rejections};
+
+/// An open transport: one zenoh session, plus one iceoryx2 node with the iceoryx2 data plane.
+/// Cheap to clone (shared).
+#[derive(Clone)]
+pub struct Transport {
+    inner: Arc<Inner>,
+}
+
+struct Inner {
+    config: TransportConfig,
+    member: Member,
+    rejections: Arc<Rejections>,
+    // Field order = drop order: iceoryx2 ports live in handles that hold this `Inner`.
+    iox: Option<IoxNode>,
+    session: zenoh::Session,
+}
+
+impl Transport {
+    /// Validates the configuration and opens the zenoh session (and the iceoryx2 node).
+    pub fn open(config: TransportConfig) -> Result<Self, TransportError> {
+        config.validate()?;
+        let session = zenoh_impl::open(&config.zenoh, config.max_message_bytes)?;
+        let iox = match config.data_plane {
+            DataPlane::Zenoh => None,
+            DataPlane::Iceoryx2 => Some(IoxNode::open(
+                &config.run,
+                config.sender,
+                &config.iceoryx2,
+                config.publish_timeout(),
+            )?),
+        };
+        let member = Member {
+            sender: config.sender,
+            instance: random_instance(),
+        };
+        Ok(Self {
+            inner: Arc::new(Inner {
+                config,
+                member,
+                rejections: Arc::new(Rejections::default()),
+                iox,
+                session,
+            }),
+        })
+    }
+
+    /// The run.
+    pub fn run(&self) -> &RunId {
+        &self.inner.config.run
+    }
+
+    /// Who this process is.
+    pub fn sender(&self) -> SenderId {
+        self.inner.config.sender
+    }
+
+    /// This process as a liveliness member (sender + incarnation).
+    pub fn member(&self) -> Member {
+        self.inner.member
+    }
+
+    /// The configuration in force.
+    pub fn config(&self) -> &TransportConfig {
+        &self.inner.config
+    }
+
+    /// Messages rejected on receive by any subscriber of this transport so far.
+    pub fn rejected_count(&self) -> u64 {
+        self.inner.rejections.total()
+    }
+
+    /// Removes the resources of crashed processes (iceoryx2 dead nodes). A no-op on the zenoh
+    /// data plane (zenoh closes a dead peer's link itself).
+    pub fn cleanup_stale(&self) -> StaleCleanup {
+        self.inner
+            .iox
+            .as_ref()
+            .map(IoxNode::cleanup_stale)
+            .unwrap_or_default()
+    }
+
+    fn iox_for<M>(&self, topic: &Topic<M>) -> Option<&IoxNode> {
+        match topic.plane() {
+            Plane::Data => self.inner.iox.as_ref(),
+            Plane::Telemetry => None,
+        }
+    }
+
+    /// A publisher for a reliable or best-effort topic (not a wildcard).
+    pub fn publisher<M: Body>(&self, topic: &Topic<M>) -> Result<Publisher<M>, TransportError> {
+        check_publishable(topic)?;
+        if topic.delivery() == Delivery::Latest {
+            return Err(wrong_delivery(topic, "Transport::latest_publisher"));
+        }
+        let backend = match self.iox_for(topic) {
+            Some(node) => PubBackend::Iox(node.publisher(
+                topic.service_name(),
+                topic.key_expr(),
+                topic.delivery(),
+                topic.fanout(),
+            )?),
+            None => PubBackend::Zenoh(zenoh_impl::declare_publisher(
+                &self.inner.session,
+                topic.key_expr(),
+                topic.delivery(),
+                topic.fanout(),
+            )?),
+        };
+        Ok(Publisher {
+            stamp: Stamp::new(self),
+            topic: topic.clone(),
+            backend,
+        })
+    }
+
+    /// A subscriber for a reliable or best-effort topic (wildcards allowed on many-to-one
+    /// topics).
+    pub fn subscriber<M: Body>(&self, topic: &Topic<M>) -> Result<Subscriber<M>, TransportError> {
+        if topic.delivery() == Delivery::Latest {
+            return Err(wrong_delivery(topic, "Transport::latest_subscriber"));
+        }
+        let backend = match self.iox_for(topic) {
+            Some(node) => {
+                let key = (!topic.is_wildcard()).then(|| topic.key_expr());
+                SubBackend::Iox(node.subscriber(
+                    topic.service_name(),
+                    key,
+                    topic.delivery(),
+                    topic.fanout(),
+                )?)
+            }
+            None => SubBackend::Zenoh(zenoh_impl::declare_subscriber(
+                &self.inner.session,
+                topic.key_expr(),
+                self.inner.config.subscriber_queue,
+            )?),
+        };
+        Ok(Subscriber {
+            rx: Receiver::new(self, topic.key_expr()),
+            backend,
+            _topic: topic.clone(),
+        })
+    }
+
+    /// The publisher of a latest-value topic (weights, control): subscribers that join later
+    /// receive the last published value at once.
+    pub fn latest_publisher<M: Body>(
+        &self,
+        topic: &Topic<M>,
+    ) -> Result<LatestPublisher<M>, TransportError> {
+        check_publishable(topic)?;
+        if topic.delivery() != Delivery::Latest {
+            return Err(wrong_delivery(topic, "Transport::publisher"));
+        }
+        let backend = match self.iox_for(topic) {
+            Some(node) => LatestPubBackend::Iox(node.publisher(
+                topic.service_name(),
+                topic.key_expr(),
+                topic.delivery(),
+                topic.fanout(),
+            )?),
+            None => LatestPubBackend::Zenoh(zenoh_impl::LatestPublisher::declare(
+                &self.inner.session,
+                topic.key_expr(),
+                topic.delivery(),
+                topic.fanout(),
+            )?),
+        };
+        Ok(LatestPublisher {
+            stamp: Stamp::new(self),
+            topic: topic.clone(),
+            backend,
+        })
+    }
+
+    /// A subscriber of a latest-value topic; see [`LatestSubscriber`].
+    pub fn latest_subscriber<M: Body>(
+        &self,
+        topic: &Topic<M>,
+    ) -> Result<LatestSubscriber<M>, TransportError> {
+        if topic.delivery() != Delivery::Latest {
+            return Err(wrong_delivery(topic, "Transport::subscriber"));
+        }
+        let rx = Receiver::new(self, topic.key_expr());
+        let slot = Arc::new(Slot::default());
+        let backend = match self.iox_for(topic) {
+            Some(node) => LatestSubBackend::Iox(node.subscriber(
+                topic.service_name(),
+                Some(topic.key_expr()),
+                topic.delivery(),
+                topic.fanout(),
+            )?),
+            None => {
+                let (live_rx, live_slot) = (rx.clone(), Arc::clone(&slot));
+                let (init_rx, init_slot) = (rx.clone(), Arc::clone(&slot));
+                LatestSubBackend::Zenoh {
+                    _subscriber: zenoh_impl::LatestSubscriber::declare(
+                        &self.inner.session,
+                        topic.key_expr(),
+                        move |bytes, source| {
+                            if let Some(m) = live_rx.accept::<M>(bytes, source) {
+                                live_slot.set(m, true);
+                            }
+                        },
+                        move |bytes, source| {
+                            if let Some(m) = init_rx.accept::<M>(bytes, source) {
+                                init_slot.set(m, false);
+                            }
+                        },
+                    )?,
+                }
+            }
+        };
+        Ok(LatestSubscriber {
+            rx,
+            slot,
+            seen: AtomicU64::new(0),
+            backend,
+            _topic: topic.clone(),
+        })
+    }
+
+    /// Declares this process alive (`fsrl/<run>/alive/<role>/<index>/<instance>`) until the
+    /// token is dropped.
+    pub fn declare_alive(&self) -> Result<AliveToken, TransportError> {
+        let key = keys::alive(self.run(), self.inner.member);
+        let token = zenoh_impl::declare_token(&self.inner.session, &key)?;
+        Ok(AliveToken {
+            member: self.inner.member,
+            _token: token,
+        })
+    }
+
+    /// Watches membership: first a `Joined` for every member alive now, then joins and leaves.
+    pub fn watch_alive(&self) -> Result<AliveWatcher, TransportError> {
+        let queue =
+            zenoh_impl::watch_liveliness(&self.inner.session, &keys::all_alive(self.run()))?;
+        Ok(AliveWatcher {
+            run: self.run().clone(),
+            queue,
+            state: Mutex::new(WatcherState::default()),
+            _transport: self.clone(),
+        })
+    }
+
+    /// The members alive now (a query that waits up to `timeout` for answers).
+    pub fn alive_members(&self, timeout: Duration) -> Result<Vec<Member>, TransportError> {
+        let keys =
+            zenoh_impl::alive_keys(&self.inner.session, &keys::all_alive(self.run()), timeout)?;
+        let mut members: Vec<Member> = keys
+            .iter()
+            .filter_map(|k| keys::parse_alive(self.run(), k).ok())
+            .collect();
+        members.sort();
+        members.dedup();
+        Ok(members)
+    }
+}
+
+fn check_publishable<M>(topic: &Topic<M>) -> Result<(), TransportError> {
+    if topic.is_wildcard() {
+        Err(TransportError::WildcardPublish {
+            topic: topic.key_expr().to_string(),
+        })
+    } else {
+        Ok(())
+    }
+}
+
+fn wrong_delivery<M>(topic: &Topic<M>, use_instead: &'static str) -> TransportError {
+    TransportError::WrongDelivery {
+        topic: topic.key_expr().to_string(),
+        delivery: topic.delivery(),
+        use_instead,
+    }
+}
+
+fn random_instance() -> u64 {
+    let mut h = std::collections::hash_map::RandomState::new().build_hasher();
+    h.write_u32(std::process::id());
+    let now = SystemTime::now()
+        .duration_since(UNIX_EPOCH)
+        .map(|d| d.as_nanos())
+        .unwrap_or(0);
+    h.write_u128(now);
+    h.finish()
+}
+
+fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(|p| p.into_inner())
+}
+
+/// Header stamping and encoding shared by publishers.
+struct Stamp {
+    transport: Transport,
+    seq: AtomicU64,
+    last_len: AtomicUsize,
+}
+
+impl Stamp {
+    fn new(t: &Transport) -> Self {
+        Self {
+            transport: t.clone(),
+            seq: AtomicU64::new(0),
+            last_len: AtomicUsize::new(256),
+        }
+    }
+
+    fn encode<M: Body>(
+        &self,
+        policy_version: u64,
+        body: &M,
+    ) -> Result<(u64, Vec<u8>), TransportError> {
+        let seq = self.seq.fetch_add(1, Ordering::Relaxed);
+        let header = proto::Header::new::<M>(
+            self.transport.run().clone(),
+            self.transport.sender(),
+            seq,
+            policy_version,
+        );
+        Ok((seq, self.encode_header(&header, body)?))
+    }
+
+    fn encode_header<M: Body>(
+        &self,
+        header: &proto::Header,
+        body: &M,
+    ) -> Result<Vec<u8>, TransportError> {
+        let mut buf = Vec::with_capacity(self.last_len.load(Ordering::Relaxed) + 64);
+        proto::encode_into(
+            header,
+            body,
+            &mut buf,
+            self.transport.inner.config.max_message_bytes,
+        )?;
+        self.last_len.store(buf.len(), Ordering::Relaxed);
+        Ok(buf)
+    }
+}
+
+enum PubBackend {
+    Zenoh(zenoh::pubsub::Publisher<'static>),
+    Iox(IoxPublisher),
+}
+
+/// Publisher of a reliable or best-effort topic; see [`Transport::publisher`].
+pub struct Publisher<M> {
+    stamp: Stamp,
+    topic: Topic<M>,
+    backend: PubBackend,
+}
+
+impl<M: Body> Publisher<M> {
+    /// Stamps a header (sequence number +1 per call, `policy_version` as given), encodes and
+    /// sends `body`. Returns the sequence number. On a reliable topic this blocks while a
+    /// receiver's queue is full (up to the configured timeout).
+    pub fn publish(&self, policy_version: u64, body: &M) -> Result<u64, TransportError> {
+        let (seq, bytes) = self.stamp.encode(policy_version, body)?;
+        self.send(bytes)?;
+        Ok(seq)
+    }
+
+    /// Sends a message with its own header (e.g. re-sending an unacknowledged episode with its
+    /// original sequence number).
+    pub fn publish_message(&self, message: &Message<M>) -> Result<(), TransportError> {
+        let bytes = self.stamp.encode_header(&message.header, &message.body)?;
+        self.send(bytes)
+    }
+
+    /// Sends pre-encoded bytes as they are (no validation). For tests and bridges only.
+    #[doc(hidden)]
+    pub fn publish_raw(&self, bytes: Vec<u8>) -> Result<(), TransportError> {
+        self.send(bytes)
+    }
+
+    fn send(&self, bytes: Vec<u8>) -> Result<(), TransportError> {
+        match &self.backend {
+            PubBackend::Zenoh(p) => zenoh_impl::put(p, bytes),
+            PubBackend::Iox(p) => p.send(&bytes).map(|_| ()),
+        }
+    }
+
+    /// Whether at least one subscriber of this topic is known to exist.
+    pub fn has_subscribers(&self) -> Result<bool, TransportError> {
+        match &self.backend {
+            PubBackend::Zenoh(p) => zenoh_impl::has_subscribers(p),
+            PubBackend::Iox(p) => Ok(p.subscriber_count() > 0),
+        }
+    }
+
+    /// Waits up to `timeout` until a subscriber exists (e.g. an actor waiting for the
+    /// learner before publishing). Returns whether one does.
+    pub fn wait_for_subscribers(&self, timeout: Duration) -> Result<bool, TransportError> {
+        wait_until(timeout, || self.has_subscribers())
+    }
+
+    /// The topic.
+    pub fn topic(&self) -> &Topic<M> {
+        &self.topic
+    }
+}
+
+/// Decoding + rejection accounting shared by subscribers.
+#[derive(Clone)]
+struct Receiver {
+    run: RunId,
+    limit: usize,
+    rejected: RejectCounter,
+}
+
+impl Receiver {
+    fn new(t: &Transport, key: &str) -> Self {
+        Self {
+            run: t.run().clone(),
+            limit: t.inner.config.max_message_bytes,
+            rejected: RejectCounter::new(Arc::clone(&t.inner.rejections), key),
+        }
+    }
+
+    fn accept<M: Body>(&self, bytes: &[u8], source: &str) -> Option<Message<M>> {
+        match proto::decode_with_limit::<M>(bytes, self.limit) {
+            Ok(m) if m.header.run == self.run => Some(m),
+            Ok(m) => {
+                self.rejected
+                    .reject(source, &Rejection::WrongRun(m.header.run.to_string()));
+                None
+            }
+            Err(e) => {
+                self.rejected.reject(source, &Rejection::Decode(e));
+                None
+            }
+        }
+    }
+}
+
+enum SubBackend {
+    Zenoh(zenoh_impl::SampleQueue),
+    Iox(IoxSubscriber),
+}
+
+/// Subscriber of a reliable or best-effort topic; see [`Transport::subscriber`].
+pub struct Subscriber<M> {
+    rx: Receiver,
+    backend: SubBackend,
+    _topic: Topic<M>,
+}
+
+impl<M: Body> Subscriber<M> {
+    /// The next valid message, waiting up to `timeout`. Invalid messages are counted and
+    /// skipped.
+    pub fn recv_timeout(&self, timeout: Duration) -> Result<Option<Message<M>>, TransportError> {
+        let deadline = Instant::now() + timeout;
+        match &self.backend {
+            SubBackend::Zenoh(q) => loop {
+                let remaining = deadline.saturating_duration_since(Instant::now());
+                let sample = q
+                    .recv_timeout(remaining)
+                    .map_err(error::zenoh_err("receive"))?;
+                let Some(sample) = sample else {
+                    return Ok(None);
+                };
+                if let Some(m) = zenoh_impl::with_payload(&sample, |b, s| self.rx.accept(b, s)) {
+                    return Ok(Some(m));
+                }
+            },
+            SubBackend::Iox(s) => s.recv_until(deadline, |b, src| self.rx.accept(b, src)),
+        }
+    }
+
+    /// The next valid message if one is queued, without waiting.
+    pub fn try_recv(&self) -> Result<Option<Message<M>>, TransportError> {
+        match &self.backend {
+            SubBackend::Zenoh(q) => {
+                while let Some(sample) = q.try_recv().map_err(error::zenoh_err("receive"))? {
+                    if let Some(m) = zenoh_impl::with_payload(&sample, |b, s| self.rx.accept(b, s))
+                    {
+                        return Ok(Some(m));
+                    }
+                }
+                Ok(None)
+            }
+            SubBackend::Iox(s) => {
+                while let Some(r) = s.try_take(|b, src| self.rx.accept(b, src))? {
+                    if r.is_some() {
+                        return Ok(r);
+                    }
+                }
+                Ok(None)
+            }
+        }
+    }
+
+    /// Messages this subscriber rejected (malformed, other protocol version, other run).
+    pub fn rejected_count(&self) -> u64 {
+        self.rx.rejected.count()
+    }
+}
+
+enum LatestPubBackend {
+    Zenoh(zenoh_impl::LatestPublisher),
+    Iox(IoxPublisher),
+}
+
+/// Publisher of a latest-value topic; see [`Transport::latest_publisher`].
+pub struct LatestPublisher<M> {
+    stamp: Stamp,
+    topic: Topic<M>,
+    backend: LatestPubBackend,
+}
+
+impl<M: Body> LatestPublisher<M> {
+    /// Publishes a new current value; returns its sequence number.
+    pub fn publish(&self, policy_version: u64, body: &M) -> Result<u64, TransportError> {
+        let (seq, bytes) = self.stamp.encode(policy_version, body)?;
+        match &self.backend {
+            LatestPubBackend::Zenoh(p) => p.put(bytes)?,
+            LatestPubBackend::Iox(p) => {
+                p.send(&bytes)?;
+            }
+        }
+        Ok(seq)
+    }
+
+    /// Whether at least one subscriber of this topic is known to exist.
+    pub fn has_subscribers(&self) -> Result<bool, TransportError> {
+        match &self.backend {
+            LatestPubBackend::Zenoh(p) => p.has_subscribers(),
+            LatestPubBackend::Iox(p) => Ok(p.subscriber_count() > 0),
+        }
+    }
+
+    /// Waits up to `timeout` until a subscriber exists. Returns whether one does.
+    pub fn wait_for_subscribers(&self, timeout: Duration) -> Result<bool, TransportError> {
+        wait_until(timeout, || self.has_subscribers())
+    }
+
+    /// The topic.
+    pub fn topic(&self) -> &Topic<M> {
+        &self.topic
+    }
+}
+
+/// Polls `cond` every millisecond until it holds or `timeout` passes.
+fn wait_until(
+    timeout: Duration,
+    mut cond: impl FnMut() -> Result<bool, TransportError>,
+) -> Result<bool, TransportError> {
+    let deadline = Instant::now() + timeout;
+    loop {
+        if cond()? {
+            return Ok(true);
+        }
+        if Instant::now() >= deadline {
+            return Ok(false);
+        }
+        std::thread::sleep(Duration::from_millis(1));
+    }
+}
+
+#[derive(Default)]
+struct SlotState<M> {
+    current: Option<Arc<Message<M>>>,
+    generation: u64,
+    live_seen: bool,
+}
+
+struct Slot<M> {
+    state: Mutex<SlotState<M>>,
+    changed: Condvar,
+}
+
+impl<M> Default for Slot<M> {
+    fn default() -> Self {
+        Self {
+            state: Mutex::new(SlotState {
+                current: None,
+                generation: 0,
+                live_seen: false,
+            }),
+            changed: Condvar::new(),
+        }
+    }
+}
+
+impl<M> Slot<M> {
+    /// A live sample always wins; the initial (queried) value only if nothing live arrived.
+    fn set(&self, m: Message<M>, live: bool) {
+        let mut s = lock(&self.state);
+        if !live && s.live_seen {
+            return;
+        }
+        s.live_seen |= live;
+        s.current = Some(Arc::new(m));
+        s.generation += 1;
+        self.changed.notify_all();
+    }
+}
+
+enum LatestSubBackend {
+    /// The zenoh callbacks fill the slot; the handle only keeps them declared.
+    Zenoh {
+        _subscriber: zenoh_impl::LatestSubscriber,
+    },
+    Iox(IoxSubscriber),
+}
+
+/// Subscriber of a latest-value topic (weights, control). Keeps only the newest value; a
+/// subscriber created after the value was published gets it at once.
+pub struct LatestSubscriber<M> {
+    rx: Receiver,
+    slot: Arc<Slot<M>>,
+    seen: AtomicU64,
+    backend: LatestSubBackend,
+    _topic: Topic<M>,
+}
+
+impl<M: Body> LatestSubscriber<M> {
+    fn pump(&self) -> Result<(), TransportError> {
+        if let LatestSubBackend::Iox(s) = &self.backend {
+            while let Some(r) = s.try_take(|b, src| self.rx.accept::<M>(b, src))? {
+                if let Some(m) = r {
+                    self.slot.set(m, true);
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// The newest value received so far, without waiting.
+    pub fn latest(&self) -> Result<Option<Arc<Message<M>>>, TransportError> {
+        self.pump()?;
+        Ok(lock(&self.slot.state).current.clone())
+    }
+
+    /// Waits up to `timeout` for a value newer than the last one returned by `next` (the
+    /// first call returns the current value at once if there is one). Intermediate values
+    /// may be skipped.
+    pub fn next(&self, timeout: Duration) -> Result<Option<Arc<Message<M>>>, TransportError> {
+        let deadline = Instant::now() + timeout;
+        loop {
+            self.pump()?;
+            let s = lock(&self.slot.state);
+            if s.generation > self.seen.load(Ordering::Relaxed) {
+                self.seen.store(s.generation, Ordering::Relaxed);
+                return Ok(s.current.clone());
+            }
+            let remaining = deadline.saturating_duration_since(Instant::now());
+            if remaining.is_zero() {
+                return Ok(None);
+            }
+            match &self.backend {
+                LatestSubBackend::Zenoh { .. } => {
+                    // Woken by the zenoh callback that fills the slot.
+                    let _ = self.slot.changed.wait_timeout(s, remaining);
+                }
+                LatestSubBackend::Iox(sub) => {
+                    drop(s);
+                    sub.wait(remaining)?;
+                }
+            }
+        }
+    }
+
+    /// Messages this subscriber rejected.
+    pub fn rejected_count(&self) -> u64 {
+        self.rx.rejected.count()
+    }
+}
+
+/// Keeps this process listed as alive; dropping it announces the leave.
+pub struct AliveToken {
+    member: Member,
+    _token: zenoh::liveliness::LivelinessToken,
+}
+
+impl AliveToken {
+    /// The member announced.
+    pub fn member(&self) -> Member {
+        self.member
+    }
+}
+
+/// A membership change.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum AliveEvent {
+    /// A process declared itself alive (or was alive when watching started).
+    Joined(Member),
+    /// A process left (dropped its token, exited or crashed).
+    Left(Member),
+}
+
+#[derive(Default)]
+struct WatcherState {
+    members: BTreeSet<Member>,
+    pending: VecDeque<AliveEvent>,
+}
+
+/// Stream of [`AliveEvent`]s; see [`Transport::watch_alive`].
+pub struct AliveWatcher {
+    run: RunId,
+    queue: zenoh_impl::SampleQueue,
+    state: Mutex<WatcherState>,
+    _transport: Transport,
+}
+
+impl AliveWatcher {
+    fn absorb(&self, sample: zenoh::sample::Sample, state: &mut WatcherState) {
+        let key = sample.key_expr().as_str();
+        let member = match keys::parse_alive(&self.run, key) {
+            Ok(m) => m,
+            Err(e) => {
+                tracing::debug!(key, error = %e, "ignoring foreign liveliness token");
+                return;
+            }
+        };
+        let event = match sample.kind() {
+            SampleKind::Put => {
+                if !state.members.insert(member) {
+                    return;
+                }
+                AliveEvent::Joined(member)
+            }
+            SampleKind::Delete => {
+                if !state.members.remove(&member) {
+                    return;
+                }
+                AliveEvent::Left(member)
+            }
+        };
+        state.pending.push_back(event);
+    }
+
+    fn drain(&self, state: &mut WatcherState) -> Result<(), TransportError> {
+        while let Some(s) = self
+            .queue
+            .try_recv()
+            .map_err(error::zenoh_err("liveliness receive"))?
+        {
+            self.absorb(s, state);
+        }
+        Ok(())
+    }
+
+    /// The next membership change, waiting up to `timeout`.
+    pub fn recv_timeout(&self, timeout: Duration) -> Result<Option<AliveEvent>, TransportError> {
+        let deadline = Instant::now() + timeout;
+        loop {
+            {
+                let mut st = lock(&self.state);
+                self.drain(&mut st)?;
+                if let Some(e) = st.pending.pop_front() {
+                    return Ok(Some(e));
+                }
+            }
+            let remaining = deadline.saturating_duration_since(Instant::now());
+            if remaining.is_zero() {
+                return Ok(None);
+            }
+            let sample = self
+                .queue
+                .recv_timeout(remaining)
+                .map_err(error::zenoh_err("liveliness receive"))?;
+            if let Some(s) = sample {
+                self.absorb(s, &mut lock(&self.state));
+            }
+        }
+    }
+
+    /// Members alive according to the events received so far (pending events are absorbed
+    /// and stay queued for [`AliveWatcher::recv_timeout`]).
+    pub fn members(&self) -> Result<Vec<Member>, TransportError> {
+        let mut st = lock(&self.state);
+        self.drain(&mut st)?;
+        Ok(st.members.iter().copied().collect())
+    }
+}

@@ -1,0 +1,369 @@
+//! The learner's core, free of any transport: episodes in, featurised transitions into replay,
+//! imitation epochs on Monte-Carlo returns, deep V-learning updates on targets from the target
+//! network, the ε schedule and the counters.
+
+use rand::seq::SliceRandom;
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+
+use policy::joint::{featurize_into, HumanOrder};
+use policy::method::{Method, ReplayFilter, TrainConfig};
+use policy::optim::AdamConfig;
+use policy::rollout::EpisodeData;
+use policy::train::Trainer;
+use policy::{PolicyError, StateBatch, ValueNet, FEATURE_DIM};
+use sim::Outcome;
+
+use crate::replay::{Batch, Replay, Transition};
+
+/// Why the learner refused something.
+#[derive(Debug, thiserror::Error)]
+pub enum LearnerError {
+    #[error("method {0} has no value network to train")]
+    NotTrainable(Method),
+    #[error("rejected episode (setting {setting}, seed {seed}): {reason}")]
+    BadEpisode {
+        setting: String,
+        seed: u64,
+        reason: String,
+    },
+    #[error(transparent)]
+    Policy(#[from] PolicyError),
+}
+
+/// Progress counters (also checkpointed).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct Counters {
+    /// Demonstration episodes received.
+    pub demo_episodes: u64,
+    /// Whether imitation learning has finished.
+    pub imitation_done: bool,
+    /// RL episodes received.
+    pub rl_episodes: u64,
+    /// Gradient steps taken (both phases).
+    pub updates: u64,
+    /// Environment steps received.
+    pub env_steps: u64,
+    /// Version of the online weights: bumped after every round of updates.
+    pub policy_version: u64,
+}
+
+/// Replay, trainer and schedule of one training run.
+pub struct LearnerCore {
+    method: Method,
+    train: TrainConfig,
+    trainer: Trainer,
+    replay: Replay,
+    rng: ChaCha8Rng,
+    counters: Counters,
+    order: HumanOrder,
+    humans: usize,
+    order_buf: Vec<(f64, usize)>,
+    feats: Vec<f32>,
+    batch: Batch,
+}
+
+impl LearnerCore {
+    /// A new run of `method` whose episodes have `humans` humans; weights initialised from `seed`.
+    pub fn new(
+        method: Method,
+        train: TrainConfig,
+        humans: usize,
+        seed: u64,
+    ) -> Result<Self, LearnerError> {
+        let net_cfg = method.net().ok_or(LearnerError::NotTrainable(method))?;
+        let net = ValueNet::new(net_cfg, seed)?;
+        let trainer = Trainer::new(
+            net,
+            AdamConfig::with_lr(train.imitation.learning_rate as f32),
+        );
+        Ok(Self::assemble(
+            method,
+            train,
+            trainer,
+            Replay::new(0, humans),
+            ChaCha8Rng::seed_from_u64(seed ^ 0x1EA7_0E12),
+            Counters::default(),
+        ))
+    }
+
+    pub(crate) fn assemble(
+        method: Method,
+        train: TrainConfig,
+        trainer: Trainer,
+        replay: Replay,
+        rng: ChaCha8Rng,
+        counters: Counters,
+    ) -> Self {
+        let humans = replay.humans();
+        let replay = if replay.capacity() == 0 {
+            Replay::new(train.rl.replay_capacity, humans)
+        } else {
+            replay
+        };
+        Self {
+            order: method.human_order(),
+            method,
+            train,
+            trainer,
+            replay,
+            rng,
+            counters,
+            humans,
+            order_buf: Vec::new(),
+            feats: Vec::new(),
+            batch: Batch::default(),
+        }
+    }
+
+    pub fn method(&self) -> Method {
+        self.method
+    }
+    pub fn config(&self) -> &TrainConfig {
+        &self.train
+    }
+    pub fn counters(&self) -> Counters {
+        self.counters
+    }
+    pub fn replay(&self) -> &Replay {
+        &self.replay
+    }
+    pub fn trainer(&self) -> &Trainer {
+        &self.trainer
+    }
+    pub fn online(&self) -> &ValueNet {
+        self.trainer.online()
+    }
+    pub(crate) fn rng(&self) -> &ChaCha8Rng {
+        &self.rng
+    }
+    pub fn humans(&self) -> usize {
+        self.humans
+    }
+
+    /// Changes how many RL episodes the run lasts (to extend a resumed run).
+    pub fn set_rl_episodes(&mut self, episodes: u64) {
+        self.train.rl.episodes = episodes;
+    }
+
+    /// ε for the next RL episode.
+    pub fn epsilon(&self) -> f64 {
+        self.train.rl.epsilon(self.counters.rl_episodes)
+    }
+
+    fn check(&self, ep: &EpisodeData) -> Result<(), String> {
+        if ep.states.len() != ep.actions.len() + 1 || ep.rewards.len() != ep.actions.len() {
+            return Err(format!(
+                "{} states, {} actions and {} rewards do not fit together",
+                ep.states.len(),
+                ep.actions.len(),
+                ep.rewards.len()
+            ));
+        }
+        if ep.actions.is_empty() {
+            return Err("no steps".into());
+        }
+        if let Some(s) = ep.states.iter().find(|s| s.humans.len() != self.humans) {
+            return Err(format!(
+                "{} humans, this run has {}",
+                s.humans.len(),
+                self.humans
+            ));
+        }
+        let finite_state = |s: &policy::rollout::JointState| {
+            let r = &s.robot;
+            [
+                r.position.x,
+                r.position.y,
+                r.velocity.x,
+                r.velocity.y,
+                r.goal.x,
+                r.goal.y,
+                r.heading_rad,
+                r.radius_m,
+                r.v_pref_mps,
+            ]
+            .iter()
+            .all(|v| v.is_finite())
+                && s.humans.iter().all(|h| {
+                    [
+                        h.position.x,
+                        h.position.y,
+                        h.velocity.x,
+                        h.velocity.y,
+                        h.radius_m,
+                    ]
+                    .iter()
+                    .all(|v| v.is_finite())
+                })
+        };
+        if !ep.states.iter().all(finite_state) {
+            return Err("non-finite value in a state".into());
+        }
+        if !ep.rewards.iter().all(|r| r.total.is_finite()) {
+            return Err("non-finite reward".into());
+        }
+        if ep.states[0].robot.v_pref_mps <= 0.0 {
+            return Err("robot v_pref must be > 0".into());
+        }
+        Ok(())
+    }
+
+    /// Featurises `ep` into replay (unless the filter drops it). `demonstration` marks imitation
+    /// data. Returns whether the episode was stored. A malformed episode is refused whole.
+    pub fn add_episode(
+        &mut self,
+        ep: &EpisodeData,
+        demonstration: bool,
+    ) -> Result<bool, LearnerError> {
+        self.check(ep).map_err(|reason| LearnerError::BadEpisode {
+            setting: ep.setting.name().to_string(),
+            seed: ep.seed,
+            reason,
+        })?;
+        if demonstration {
+            self.counters.demo_episodes += 1;
+        } else {
+            self.counters.rl_episodes += 1;
+        }
+        self.counters.env_steps += ep.steps() as u64;
+        let keep = match self.train.rl.replay_filter {
+            ReplayFilter::All => true,
+            ReplayFilter::SuccessCollision => {
+                matches!(ep.outcome, Outcome::ReachGoal | Outcome::Collision)
+            }
+        };
+        if !keep {
+            return Ok(false);
+        }
+        let dt = ep.summary.time_s / ep.summary.steps.max(1) as f64;
+        let discount = self.train.gamma.powf(dt * ep.states[0].robot.v_pref_mps) as f32;
+        // Features of every state, once.
+        self.feats.clear();
+        for s in &ep.states {
+            featurize_into(
+                &s.robot,
+                &s.humans,
+                self.order,
+                &mut self.order_buf,
+                &mut self.feats,
+            );
+        }
+        let row = self.humans * FEATURE_DIM;
+        let t_len = ep.steps();
+        let mut mc = 0f32;
+        let mut returns = vec![0f32; t_len];
+        for t in (0..t_len).rev() {
+            mc = ep.rewards[t].total as f32 + discount * mc;
+            returns[t] = mc;
+        }
+        for (t, &mc_return) in returns.iter().enumerate() {
+            // The last step ends the episode (a timeout is terminal for the target, SPEC §5).
+            let terminal = t + 1 == t_len;
+            self.replay.push(Transition {
+                state: &self.feats[t * row..(t + 1) * row],
+                next_state: &self.feats[(t + 1) * row..(t + 2) * row],
+                reward: ep.rewards[t].total as f32,
+                discount: if terminal { 0.0 } else { discount },
+                mc_return,
+            });
+        }
+        Ok(true)
+    }
+
+    /// Imitation learning: `epochs` shuffled passes over replay fitting the Monte-Carlo returns.
+    /// Calls `progress(epoch, mean loss)` after each epoch; returns the last epoch's mean loss.
+    pub fn imitation(
+        &mut self,
+        epochs: u32,
+        mut progress: impl FnMut(u32, f32),
+    ) -> Result<f32, LearnerError> {
+        let bs = self.train.imitation.batch_size;
+        let mut order: Vec<usize> = (0..self.replay.len()).collect();
+        let mut last = f32::NAN;
+        for epoch in 0..epochs {
+            order.shuffle(&mut self.rng);
+            let (mut sum, mut n) = (0f64, 0usize);
+            for chunk in order.chunks(bs) {
+                self.replay.gather(chunk.iter().copied(), &mut self.batch);
+                let states = StateBatch::new(&self.batch.states, chunk.len(), self.humans)?;
+                sum += self.trainer.fit(states, &self.batch.returns)? as f64;
+                n += 1;
+                self.counters.updates += 1;
+            }
+            last = (sum / n.max(1) as f64) as f32;
+            self.counters.policy_version += 1;
+            progress(epoch, last);
+        }
+        Ok(last)
+    }
+
+    /// Mean squared error of the online network against the Monte-Carlo returns of everything
+    /// in replay (no update).
+    pub fn imitation_loss(&mut self) -> Result<f32, LearnerError> {
+        let bs = self.train.imitation.batch_size.max(1);
+        let mut values = Vec::new();
+        let mut scratch = policy::Scratch::default();
+        let (mut sum, mut n) = (0f64, 0usize);
+        let len = self.replay.len();
+        for start in (0..len).step_by(bs) {
+            let end = (start + bs).min(len);
+            self.replay.gather(start..end, &mut self.batch);
+            let states = StateBatch::new(&self.batch.states, end - start, self.humans)?;
+            values.resize(end - start, 0.0);
+            self.trainer
+                .online()
+                .values_into(states, &mut scratch, &mut values);
+            for (v, y) in values.iter().zip(&self.batch.returns) {
+                sum += ((v - y) as f64).powi(2);
+                n += 1;
+            }
+        }
+        Ok((sum / n.max(1) as f64) as f32)
+    }
+
+    /// Ends imitation: fresh Adam at the RL learning rate, target network = online network.
+    pub fn start_rl(&mut self) {
+        let online = self.trainer.online().clone();
+        self.trainer = Trainer::new(
+            online,
+            AdamConfig::with_lr(self.train.rl.learning_rate as f32),
+        );
+        self.counters.imitation_done = true;
+    }
+
+    /// `batches` V-learning updates on uniform samples from replay; returns the mean loss.
+    /// Bumps the policy version and refreshes the target network on schedule.
+    pub fn train_rl(&mut self, batches: u32) -> Result<f32, LearnerError> {
+        let bs = self.train.rl.batch_size;
+        let (mut sum, mut n) = (0f64, 0u32);
+        for _ in 0..batches {
+            if self.replay.is_empty() {
+                break;
+            }
+            self.replay.sample(&mut self.rng, bs, &mut self.batch);
+            let b = self.batch.rewards.len();
+            let states = StateBatch::new(&self.batch.states, b, self.humans)?;
+            let next = StateBatch::new(&self.batch.next_states, b, self.humans)?;
+            sum += self
+                .trainer
+                .td_step(states, next, &self.batch.rewards, &self.batch.discounts)?
+                as f64;
+            n += 1;
+            self.counters.updates += 1;
+        }
+        self.counters.policy_version += 1;
+        if self
+            .counters
+            .rl_episodes
+            .is_multiple_of(self.train.rl.target_update_episodes)
+        {
+            self.trainer.sync_target();
+        }
+        Ok(if n == 0 {
+            f32::NAN
+        } else {
+            (sum / n as f64) as f32
+        })
+    }
+}

@@ -1,0 +1,280 @@
+//! Tests that prove learning: imitation reduces the loss; after imitation alone SARL succeeds on
+//! env1-invisible far more often than a random policy; a short RL run keeps the loss finite and
+//! moves the weights; a short run is reproducible bit for bit; checkpoints round-trip.
+
+use evaluator::{evaluate, Subject};
+use learner::checkpoint::{self, CheckpointError, RunInfo};
+use learner::LearnerCore;
+use policy::lookahead::{HumanModel, Lookahead};
+use policy::method::{Method, TrainConfig};
+use policy::rollout::{episode_seed, rollout, Behaviour};
+use rand::{Rng, SeedableRng};
+use sim::{run_episode, Aggregate, Env, Setting, SimConfig};
+
+const DEMOS: u64 = 300;
+const EPOCHS: u32 = 20;
+
+fn setting() -> Setting {
+    "env1-invisible".parse().unwrap()
+}
+
+fn imitated(method: Method, demos: u64, epochs: u32) -> (LearnerCore, Vec<f32>) {
+    let mut train = TrainConfig::default();
+    train.imitation.episodes = demos;
+    let sim_cfg = method.sim_config(&SimConfig::default());
+    let mut env = Env::new(sim_cfg, setting(), 0).unwrap();
+    let mut core = LearnerCore::new(method, train.clone(), 10, 7).unwrap();
+    for k in 0..demos {
+        let ep = rollout(
+            &mut env,
+            episode_seed(7, 0, k),
+            Behaviour::Orca {
+                safety_space_m: train.imitation.safety_space_m,
+            },
+        )
+        .unwrap();
+        core.add_episode(&ep, true).unwrap();
+    }
+    let mut losses = vec![core.imitation_loss().unwrap()];
+    core.imitation(epochs, |_, l| losses.push(l)).unwrap();
+    losses.push(core.imitation_loss().unwrap());
+    (core, losses)
+}
+
+fn random_policy_success(episodes: u32) -> Aggregate {
+    let mut agg = Aggregate::default();
+    let mut env = Env::new(SimConfig::default(), setting(), 1000).unwrap();
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+    for k in 0..episodes as u64 {
+        env.reset(1000 + k).unwrap();
+        let n = env.action_set().len();
+        let ep = run_episode(&mut env, |_| rng.gen_range(0..n), false).unwrap();
+        agg.add(&ep.summary);
+    }
+    agg
+}
+
+#[test]
+fn imitation_learns_a_policy_far_better_than_random() {
+    let (core, losses) = imitated(Method::Sarl, DEMOS, EPOCHS);
+    let (first, last) = (losses[0], *losses.last().unwrap());
+    println!(
+        "imitation MSE on {} transitions: untrained {first:.5}, after {EPOCHS} epochs {last:.5} ({:.1}x lower)",
+        core.replay().len(),
+        first / last
+    );
+    assert!(last.is_finite());
+    assert!(
+        last < first / 4.0,
+        "imitation loss {first} -> {last}: not reduced 4x"
+    );
+
+    let subject = Subject {
+        method: Method::Sarl,
+        net: Some(core.online()),
+        gamma: 0.9,
+        human_model: HumanModel::Orca,
+        orca_safety_space_m: 0.0,
+    };
+    let res = evaluate(subject, &SimConfig::default(), &[setting()], 1000, 100, 2).unwrap();
+    let sarl = res[0].aggregate;
+    let random = random_policy_success(100);
+    println!(
+        "env1-invisible, 100 test seeds: SARL after imitation success {:.2} (coll {:.2}, timeout {:.2}); random policy success {:.2}",
+        sarl.success_rate(),
+        sarl.collision_rate(),
+        sarl.timeout_rate(),
+        random.success_rate()
+    );
+    assert!(
+        random.success_rate() <= 0.05,
+        "random policy succeeded {}",
+        random.success_rate()
+    );
+    assert!(
+        sarl.success_rate() >= 0.15,
+        "SARL after imitation only {}",
+        sarl.success_rate()
+    );
+}
+
+/// A tiny run: a few demos, a couple of epochs, then `rl_episodes` RL episodes.
+fn short_run(rl_episodes: u64) -> LearnerCore {
+    let (mut core, _) = imitated(Method::Fsrl, 20, 2);
+    core.start_rl();
+    let mut env = Env::new(Method::Fsrl.sim_config(&SimConfig::default()), setting(), 0).unwrap();
+    let mut lookahead = Lookahead::new(0.9, HumanModel::Orca, Method::Fsrl.human_order());
+    for k in 0..rl_episodes {
+        let eps = core.epsilon();
+        let version = core.counters().policy_version;
+        let ep = rollout(
+            &mut env,
+            episode_seed(7, 1, k),
+            Behaviour::Net {
+                net: core.online(),
+                lookahead: &mut lookahead,
+                epsilon: eps,
+                policy_version: version,
+            },
+        )
+        .unwrap();
+        core.add_episode(&ep, false).unwrap();
+        let loss = core.train_rl(20).unwrap();
+        assert!(loss.is_finite(), "RL loss {loss} at episode {k}");
+    }
+    core
+}
+
+#[test]
+fn a_short_rl_run_keeps_the_loss_finite_and_moves_the_weights() {
+    let (il, _) = imitated(Method::Fsrl, 20, 2);
+    let before = il.online().params().to_vec();
+    let core = short_run(6);
+    let after = core.online().params();
+    let moved = before.iter().zip(after).filter(|(a, b)| a != b).count();
+    let change: f64 = before
+        .iter()
+        .zip(after)
+        .map(|(a, b)| ((a - b) as f64).powi(2))
+        .sum::<f64>()
+        .sqrt();
+    println!(
+        "RL moved {moved} of {} weights, L2 change {change:.4}",
+        before.len()
+    );
+    // Units that imitation left dead (ReLU) get no gradient, so not every weight moves.
+    assert!(moved > before.len() / 10, "only {moved} weights moved");
+    assert!(change > 1e-4);
+    let c = core.counters();
+    assert_eq!(c.rl_episodes, 6);
+    assert_eq!(c.demo_episodes, 20);
+    assert!(c.imitation_done);
+    // ε decays linearly from 0.5 over 4000 episodes.
+    assert!((core.epsilon() - (0.5 - 0.4 * 6.0 / 4000.0)).abs() < 1e-12);
+}
+
+#[test]
+fn a_short_run_is_reproducible_bit_for_bit() {
+    let a = short_run(3);
+    let b = short_run(3);
+    assert_eq!(a.online().params(), b.online().params());
+    assert_eq!(a.trainer().target().params(), b.trainer().target().params());
+    assert_eq!(a.replay(), b.replay());
+    assert_eq!(a.counters(), b.counters());
+}
+
+#[test]
+fn checkpoints_load_back_bit_exact_and_refuse_damage() {
+    let core = short_run(2);
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("run.ckpt");
+    let run = RunInfo {
+        run_id: "test".into(),
+        setting: setting().name().into(),
+        run_seed: 7,
+    };
+    let sim_cfg = Method::Fsrl.sim_config(&SimConfig::default());
+    checkpoint::save(&path, &core, &sim_cfg, &run).unwrap();
+    let loaded = checkpoint::load(&path).unwrap();
+    assert_eq!(loaded.run, run);
+    assert_eq!(loaded.sim, sim_cfg);
+    let l = &loaded.core;
+    assert_eq!(l.method(), Method::Fsrl);
+    assert_eq!(l.config(), core.config());
+    assert_eq!(l.online().params(), core.online().params());
+    assert_eq!(
+        l.trainer().target().params(),
+        core.trainer().target().params()
+    );
+    assert_eq!(l.trainer().adam(), core.trainer().adam());
+    assert_eq!(l.replay(), core.replay());
+    assert_eq!(l.counters(), core.counters());
+
+    // Continuing from the checkpoint gives exactly what continuing the original gives.
+    let mut original = core;
+    let mut resumed = loaded.core;
+    let lo = original.train_rl(5).unwrap();
+    let lr = resumed.train_rl(5).unwrap();
+    assert_eq!(lo.to_bits(), lr.to_bits());
+    assert_eq!(original.online().params(), resumed.online().params());
+
+    let bytes = std::fs::read(&path).unwrap();
+    let damaged = dir.path().join("damaged.ckpt");
+    // Truncated.
+    std::fs::write(&damaged, &bytes[..bytes.len() / 2]).unwrap();
+    assert!(matches!(
+        checkpoint::load(&damaged),
+        Err(CheckpointError::Truncated { .. })
+    ));
+    // A flipped bit in the payload.
+    let mut flipped = bytes.clone();
+    let mid = flipped.len() / 2;
+    flipped[mid] ^= 0x10;
+    std::fs::write(&damaged, &flipped).unwrap();
+    let err = checkpoint::load(&damaged)
+        .err()
+        .expect("corrupt file must not load");
+    assert!(matches!(err, CheckpointError::Corrupt(_)), "{err}");
+    // Another format version.
+    let mut other = bytes.clone();
+    other[8] = 99;
+    std::fs::write(&damaged, &other).unwrap();
+    let err = checkpoint::load(&damaged).err().unwrap();
+    assert!(err.to_string().contains("format version 99"), "{err}");
+    // Not a checkpoint at all; a missing file.
+    std::fs::write(&damaged, b"hello").unwrap();
+    assert!(matches!(
+        checkpoint::load(&damaged),
+        Err(CheckpointError::NotACheckpoint(_))
+    ));
+    let err = checkpoint::load(&dir.path().join("missing.ckpt"))
+        .err()
+        .unwrap();
+    assert!(err.to_string().contains("missing.ckpt"), "{err}");
+    // Random garbage after a valid header never panics.
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(9);
+    for _ in 0..50 {
+        let mut g = bytes[..20].to_vec();
+        let n = rng.gen_range(0..200);
+        g.extend((0..n).map(|_| rng.gen::<u8>()));
+        std::fs::write(&damaged, &g).unwrap();
+        assert!(checkpoint::load(&damaged).is_err());
+    }
+}
+
+#[test]
+fn malformed_episodes_are_refused_whole() {
+    let mut core = LearnerCore::new(Method::Sarl, TrainConfig::default(), 10, 1).unwrap();
+    let mut env = Env::new(SimConfig::default(), setting(), 0).unwrap();
+    let ep = rollout(
+        &mut env,
+        5,
+        Behaviour::Orca {
+            safety_space_m: 0.0,
+        },
+    )
+    .unwrap();
+    let mut nan = ep.clone();
+    nan.states[1].humans[3].position.x = f64::NAN;
+    let err = core.add_episode(&nan, false).unwrap_err();
+    assert!(err.to_string().contains("non-finite"), "{err}");
+    let mut short = ep.clone();
+    short.actions.pop();
+    assert!(core.add_episode(&short, false).is_err());
+    let mut fewer = ep.clone();
+    fewer.states[0].humans.pop();
+    assert!(core
+        .add_episode(&fewer, false)
+        .unwrap_err()
+        .to_string()
+        .contains("9 humans"));
+    assert_eq!(
+        core.replay().len(),
+        0,
+        "nothing of a refused episode is stored"
+    );
+    assert_eq!(core.counters().rl_episodes, 0);
+    assert!(core.add_episode(&ep, false).unwrap());
+    assert_eq!(core.replay().len(), ep.steps());
+    assert!(LearnerCore::new(Method::Orca, TrainConfig::default(), 10, 1).is_err());
+}

@@ -1,0 +1,326 @@
+//! Methods are configurations, not copies (issue 3): a [`Method`] picks a network, the reward
+//! switches and the human order; [`TrainConfig`] holds every number of the training schedule
+//! (SPEC §5) with the paper's defaults.
+
+use std::fmt;
+use std::str::FromStr;
+
+use serde::{Deserialize, Serialize};
+use sim::SimConfig;
+
+use crate::joint::HumanOrder;
+use crate::lookahead::HumanModel;
+use crate::NetConfig;
+
+/// The robot policies compared in the paper, and the ablations.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+pub enum Method {
+    /// ORCA's velocity mapped to the nearest action (not trainable).
+    #[serde(rename = "orca")]
+    Orca,
+    /// LSTM-RL network, R_c only.
+    #[serde(rename = "lstm-rl")]
+    LstmRl,
+    /// SARL network, R_c only.
+    #[serde(rename = "sarl")]
+    Sarl,
+    /// SARL network with the full FSRL reward.
+    #[serde(rename = "fsrl")]
+    Fsrl,
+    /// SARL network, R_c + foresight (R_st + R_dy).
+    #[serde(rename = "sarl+foresight")]
+    SarlForesight,
+    /// SARL network, R_c + efficiency (R_t).
+    #[serde(rename = "sarl+efficiency")]
+    SarlEfficiency,
+}
+
+impl Method {
+    pub const ALL: [Method; 6] = [
+        Method::Orca,
+        Method::LstmRl,
+        Method::Sarl,
+        Method::Fsrl,
+        Method::SarlForesight,
+        Method::SarlEfficiency,
+    ];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Method::Orca => "orca",
+            Method::LstmRl => "lstm-rl",
+            Method::Sarl => "sarl",
+            Method::Fsrl => "fsrl",
+            Method::SarlForesight => "sarl+foresight",
+            Method::SarlEfficiency => "sarl+efficiency",
+        }
+    }
+
+    /// The value network, `None` for ORCA.
+    pub fn net(self) -> Option<NetConfig> {
+        match self {
+            Method::Orca => None,
+            Method::LstmRl => Some(NetConfig::lstm_rl()),
+            _ => Some(NetConfig::sarl()),
+        }
+    }
+
+    /// (foresight, efficiency): which FSRL terms the method is trained and planned with.
+    pub fn reward_switches(self) -> (bool, bool) {
+        match self {
+            Method::Orca | Method::LstmRl | Method::Sarl => (false, false),
+            Method::Fsrl => (true, true),
+            Method::SarlForesight => (true, false),
+            Method::SarlEfficiency => (false, true),
+        }
+    }
+
+    /// The simulator config this method runs with: `base` with the method's reward switches.
+    pub fn sim_config(self, base: &SimConfig) -> SimConfig {
+        let mut cfg = base.clone();
+        let (foresight, efficiency) = self.reward_switches();
+        cfg.reward.foresight = foresight;
+        cfg.reward.efficiency = efficiency;
+        cfg
+    }
+
+    /// The human order the method's network reads.
+    pub fn human_order(self) -> HumanOrder {
+        match self {
+            Method::LstmRl => HumanOrder::FarthestFirst,
+            _ => HumanOrder::AsGiven,
+        }
+    }
+}
+
+impl fmt::Display for Method {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+/// An unknown method name.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("unknown method `{0}`; expected one of orca, lstm-rl, sarl, fsrl, sarl+foresight, sarl+efficiency")]
+pub struct UnknownMethod(pub String);
+
+impl FromStr for Method {
+    type Err = UnknownMethod;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        Method::ALL
+            .iter()
+            .copied()
+            .find(|m| m.name() == s)
+            .ok_or_else(|| UnknownMethod(s.to_string()))
+    }
+}
+
+/// Which finished episodes enter replay.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum ReplayFilter {
+    /// Every episode, timeouts included (SPEC §5).
+    #[default]
+    All,
+    /// Only success and collision episodes (CrowdNav).
+    SuccessCollision,
+}
+
+/// The lookahead's model of the humans, as written in config files.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum HumanModelName {
+    #[default]
+    Orca,
+    ConstantVelocity,
+}
+
+impl From<HumanModelName> for HumanModel {
+    fn from(m: HumanModelName) -> Self {
+        match m {
+            HumanModelName::Orca => HumanModel::Orca,
+            HumanModelName::ConstantVelocity => HumanModel::ConstantVelocity,
+        }
+    }
+}
+
+/// Imitation learning from the ORCA demonstrator (SPEC §5).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct ImitationConfig {
+    pub episodes: u64,
+    pub epochs: u32,
+    pub learning_rate: f64,
+    pub batch_size: usize,
+    /// The demonstrator's extra ORCA radius (CrowdNav: 0.15 with an invisible robot).
+    pub safety_space_m: f64,
+}
+
+impl Default for ImitationConfig {
+    fn default() -> Self {
+        Self {
+            episodes: 3000,
+            epochs: 50,
+            learning_rate: 0.01,
+            batch_size: 100,
+            safety_space_m: 0.15,
+        }
+    }
+}
+
+/// Deep V-learning (SPEC §5).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct RlConfig {
+    pub episodes: u64,
+    pub epsilon_start: f64,
+    pub epsilon_end: f64,
+    pub epsilon_decay_episodes: u64,
+    pub learning_rate: f64,
+    pub batch_size: usize,
+    pub batches_per_episode: u32,
+    pub target_update_episodes: u64,
+    pub replay_capacity: usize,
+    pub replay_filter: ReplayFilter,
+}
+
+impl Default for RlConfig {
+    fn default() -> Self {
+        Self {
+            episodes: 10_000,
+            epsilon_start: 0.5,
+            epsilon_end: 0.1,
+            epsilon_decay_episodes: 4000,
+            learning_rate: 1e-4,
+            batch_size: 100,
+            batches_per_episode: 100,
+            target_update_episodes: 50,
+            replay_capacity: 100_000,
+            replay_filter: ReplayFilter::All,
+        }
+    }
+}
+
+impl RlConfig {
+    /// ε for RL episode `episode` (0-based): linear from start to end over the decay episodes.
+    pub fn epsilon(&self, episode: u64) -> f64 {
+        if episode >= self.epsilon_decay_episodes || self.epsilon_decay_episodes == 0 {
+            self.epsilon_end
+        } else {
+            self.epsilon_start
+                + (self.epsilon_end - self.epsilon_start) * episode as f64
+                    / self.epsilon_decay_episodes as f64
+        }
+    }
+}
+
+/// Everything a training run needs besides the simulator config.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct TrainConfig {
+    /// Discount per second at v_pref: values use γ^{dt·v_pref} per step.
+    pub gamma: f64,
+    pub human_model: HumanModelName,
+    pub imitation: ImitationConfig,
+    pub rl: RlConfig,
+    /// Write a checkpoint every this many RL episodes (0: only at the end).
+    pub checkpoint_every_episodes: u64,
+    /// Test episodes per setting when evaluating (seeds from `test_seed_start`).
+    pub eval_episodes: u32,
+    pub test_seed_start: u64,
+}
+
+impl Default for TrainConfig {
+    fn default() -> Self {
+        Self {
+            gamma: 0.9,
+            human_model: HumanModelName::Orca,
+            imitation: ImitationConfig::default(),
+            rl: RlConfig::default(),
+            checkpoint_every_episodes: 1000,
+            eval_episodes: 500,
+            test_seed_start: 1000,
+        }
+    }
+}
+
+impl TrainConfig {
+    /// Every problem at once, as strings (the caller wraps them with other problems).
+    pub fn problems(&self) -> Vec<String> {
+        let mut p = Vec::new();
+        let mut unit = |name: &str, v: f64, lo_open: bool, hi: f64| {
+            let ok = v.is_finite() && (if lo_open { v > 0.0 } else { v >= 0.0 }) && v <= hi;
+            if !ok {
+                let lo = if lo_open { "(0" } else { "[0" };
+                p.push(format!("{name} must be in {lo}, {hi}], got {v}"));
+            }
+        };
+        unit("train.gamma", self.gamma, true, 1.0);
+        unit("train.imitation.learning_rate", self.imitation.learning_rate, true, 10.0);
+        unit("train.imitation.safety_space_m", self.imitation.safety_space_m, false, 10.0);
+        unit("train.rl.learning_rate", self.rl.learning_rate, true, 10.0);
+        unit("train.rl.epsilon_start", self.rl.epsilon_start, false, 1.0);
+        unit("train.rl.epsilon_end", self.rl.epsilon_end, false, 1.0);
+        for (name, v) in [
+            ("train.imitation.batch_size", self.imitation.batch_size),
+            ("train.rl.batch_size", self.rl.batch_size),
+            ("train.rl.replay_capacity", self.rl.replay_capacity),
+        ] {
+            if v == 0 {
+                p.push(format!("{name} must be at least 1"));
+            }
+        }
+        if self.rl.target_update_episodes == 0 {
+            p.push("train.rl.target_update_episodes must be at least 1".into());
+        }
+        if self.eval_episodes == 0 {
+            p.push("train.eval_episodes must be at least 1".into());
+        }
+        p
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn methods_are_configurations() {
+        for m in Method::ALL {
+            assert_eq!(m.name().parse::<Method>().unwrap(), m);
+        }
+        assert!(Method::Orca.net().is_none());
+        assert_eq!(Method::Fsrl.net(), Method::Sarl.net());
+        assert_eq!(Method::LstmRl.net(), Some(NetConfig::lstm_rl()));
+        let base = SimConfig::default();
+        let fsrl = Method::Fsrl.sim_config(&base);
+        assert!(fsrl.reward.foresight && fsrl.reward.efficiency);
+        let sarl = Method::Sarl.sim_config(&base);
+        assert!(!sarl.reward.foresight && !sarl.reward.efficiency);
+        assert_eq!(Method::SarlForesight.reward_switches(), (true, false));
+        assert_eq!(Method::SarlEfficiency.reward_switches(), (false, true));
+        assert!("ppo".parse::<Method>().is_err());
+    }
+
+    #[test]
+    fn epsilon_schedule_is_linear_then_flat() {
+        let rl = RlConfig::default();
+        assert_eq!(rl.epsilon(0), 0.5);
+        assert!((rl.epsilon(2000) - 0.3).abs() < 1e-12);
+        assert_eq!(rl.epsilon(4000), 0.1);
+        assert_eq!(rl.epsilon(9999), 0.1);
+    }
+
+    #[test]
+    fn defaults_are_the_papers_and_valid() {
+        let c = TrainConfig::default();
+        assert!(c.problems().is_empty());
+        assert_eq!((c.imitation.episodes, c.imitation.epochs, c.imitation.batch_size), (3000, 50, 100));
+        assert_eq!((c.rl.episodes, c.rl.batches_per_episode, c.rl.replay_capacity), (10_000, 100, 100_000));
+        let mut bad = c.clone();
+        bad.gamma = 1.5;
+        bad.rl.learning_rate = f64::NAN;
+        bad.rl.batch_size = 0;
+        assert_eq!(bad.problems().len(), 3, "{:?}", bad.problems());
+    }
+}

@@ -1,0 +1,418 @@
+//! `fsrl train`: trains one method on one setting in one process (imitation from the ORCA
+//! demonstrator, then deep V-learning), with progress, checkpoints, a metrics log, Ctrl-C
+//! handling, `--resume`, and a final evaluation on the setting's test seeds.
+
+use std::collections::VecDeque;
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use anyhow::{bail, Context};
+use evaluator::{evaluate, Subject};
+use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+use learner::checkpoint::{self, RunInfo};
+use learner::LearnerCore;
+use policy::lookahead::Lookahead;
+use policy::rollout::{episode_seed, rollout, Behaviour};
+use serde::Serialize;
+use sim::{Env, Outcome};
+
+use crate::config::{FileConfig, Resolved};
+use crate::report::{Report, SettingReport};
+
+/// Episode-seed streams of a run (see `policy::rollout::episode_seed`).
+const DEMO_STREAM: u64 = 0;
+const RL_STREAM: u64 = 1;
+
+#[derive(Debug, clap::Args)]
+pub struct TrainArgs {
+    /// orca, lstm-rl, sarl, fsrl, sarl+foresight, sarl+efficiency [default: fsrl]
+    #[arg(long)]
+    pub method: Option<String>,
+    /// One of the six settings [default: env1-invisible]
+    #[arg(long)]
+    pub setting: Option<String>,
+    /// Run seed [default: 0]
+    #[arg(long)]
+    pub seed: Option<u64>,
+    /// Run configuration (TOML: [run], [sim], [train] tables).
+    #[arg(long)]
+    pub config: Option<PathBuf>,
+    /// Demonstration episodes for imitation learning [default: 3000]
+    #[arg(long)]
+    pub il_episodes: Option<u64>,
+    /// Imitation epochs [default: 50]
+    #[arg(long)]
+    pub il_epochs: Option<u32>,
+    /// RL episodes [default: 10000]
+    #[arg(long, alias = "episodes")]
+    pub rl_episodes: Option<u64>,
+    /// Test episodes of the final evaluation [default: 500]
+    #[arg(long)]
+    pub eval_episodes: Option<u32>,
+    /// Checkpoint every N RL episodes [default: 1000]
+    #[arg(long)]
+    pub checkpoint_every: Option<u64>,
+    /// Run directory [default: runs/<method>-<setting>-s<seed>]
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+    /// Continue the run in --out from its last checkpoint.
+    #[arg(long)]
+    pub resume: bool,
+    /// Train in this one process (the only mode so far).
+    #[arg(long)]
+    pub single_process: bool,
+}
+
+#[derive(Serialize)]
+struct MetricsLine<'a> {
+    phase: &'a str,
+    episode: u64,
+    epsilon: f64,
+    outcome: &'a str,
+    steps: u32,
+    return_sum: f64,
+    loss: f32,
+    success_rate_window: f64,
+    collision_rate_window: f64,
+    timeout_rate_window: f64,
+    policy_version: u64,
+    env_steps: u64,
+    replay_size: usize,
+    wall_s: f64,
+}
+
+fn resolve(args: &TrainArgs) -> anyhow::Result<Resolved> {
+    let mut file = FileConfig::load(args.config.as_deref())?;
+    let mut problems = Vec::new();
+    if let Some(m) = &args.method {
+        file.run.method = m.clone();
+    }
+    if let Some(s) = &args.setting {
+        file.run.setting = s.clone();
+    }
+    if let Some(seed) = args.seed {
+        file.run.seed = seed;
+    }
+    if let Some(n) = args.il_episodes {
+        file.train.imitation.episodes = n;
+    }
+    if let Some(n) = args.il_epochs {
+        file.train.imitation.epochs = n;
+    }
+    if let Some(n) = args.rl_episodes {
+        file.train.rl.episodes = n;
+    }
+    if let Some(n) = args.eval_episodes {
+        file.train.eval_episodes = n;
+    }
+    if let Some(n) = args.checkpoint_every {
+        file.train.checkpoint_every_episodes = n;
+    }
+    if file.run.method == "orca" {
+        problems.push("method orca is not trainable; evaluate it with `fsrl sim`".to_string());
+    }
+    Ok(file.resolve(problems)?)
+}
+
+fn progress_bar(len: u64, what: &str) -> ProgressBar {
+    let bar = ProgressBar::with_draw_target(Some(len), ProgressDrawTarget::stderr_with_hz(4));
+    bar.set_style(
+        ProgressStyle::with_template(&format!(
+            "{what:>10} [{{elapsed_precise}}] {{bar:30}} {{pos}}/{{len}} ({{per_sec}}, ETA {{eta}}) {{msg}}"
+        ))
+        .expect("valid template"),
+    );
+    bar
+}
+
+/// Prints a plain progress line when stderr is not a terminal (CI logs), at most every 10 s.
+struct PlainProgress {
+    last: Instant,
+}
+
+impl PlainProgress {
+    fn tick(&mut self, bar: &ProgressBar, force: bool) {
+        if bar.is_hidden() && (force || self.last.elapsed() >= Duration::from_secs(10)) {
+            self.last = Instant::now();
+            let elapsed = bar.elapsed().as_secs_f64();
+            let rate = bar.position() as f64 / elapsed.max(1e-9);
+            let left =
+                bar.length().unwrap_or(0).saturating_sub(bar.position()) as f64 / rate.max(1e-9);
+            eprintln!(
+                "{}/{} ({rate:.2}/s, ETA {left:.0} s) {}",
+                bar.position(),
+                bar.length().unwrap_or(0),
+                bar.message()
+            );
+        }
+    }
+}
+
+pub fn run(args: TrainArgs) -> anyhow::Result<()> {
+    let stop = Arc::new(AtomicBool::new(false));
+    {
+        let stop = stop.clone();
+        ctrlc::set_handler(move || {
+            if stop.swap(true, Ordering::SeqCst) {
+                eprintln!("second interrupt: exiting without a final checkpoint");
+                std::process::exit(130);
+            }
+            eprintln!("\ninterrupted: finishing the current episode and writing a checkpoint (Ctrl-C again to quit at once)");
+        })
+        .context("cannot install the Ctrl-C handler")?;
+    }
+    let resolved = resolve(&args)?;
+    let out = args.out.clone().unwrap_or_else(|| {
+        PathBuf::from("runs").join(format!(
+            "{}-{}-s{}",
+            resolved.method.name().replace('+', "-"),
+            resolved.setting,
+            resolved.file.run.seed
+        ))
+    });
+    let ckpt_dir = out.join("checkpoints");
+    let latest = ckpt_dir.join("latest.ckpt");
+    std::fs::create_dir_all(&ckpt_dir)
+        .with_context(|| format!("cannot create {}", ckpt_dir.display()))?;
+
+    let (mut core, resolved) = if args.resume {
+        if !latest.exists() {
+            bail!("--resume: no checkpoint at {}", latest.display());
+        }
+        let mut loaded = checkpoint::load(&latest)?;
+        if let Some(n) = args.rl_episodes {
+            loaded.core.set_rl_episodes(n);
+        }
+        let mut file = resolved.file.clone();
+        file.run.method = loaded.core.method().name().to_string();
+        file.run.setting = loaded.run.setting.clone();
+        file.run.seed = loaded.run.run_seed;
+        file.sim = loaded.sim.clone();
+        file.train = loaded.core.config().clone();
+        let c = loaded.core.counters();
+        eprintln!(
+            "resuming {} from {}: {} RL episodes done, policy version {}",
+            out.display(),
+            latest.display(),
+            c.rl_episodes,
+            c.policy_version
+        );
+        (loaded.core, file.resolve(Vec::new())?)
+    } else {
+        if latest.exists() {
+            bail!(
+                "{} already holds a run (checkpoint {}); pass --resume to continue it or --out to start another",
+                out.display(),
+                latest.display()
+            );
+        }
+        let core = LearnerCore::new(
+            resolved.method,
+            resolved.file.train.clone(),
+            resolved.file.sim.humans.count,
+            resolved.file.run.seed,
+        )?;
+        (core, resolved)
+    };
+    let file = &resolved.file;
+    let method = resolved.method;
+    let setting = resolved.setting;
+    let run_seed = file.run.seed;
+    let train = core.config().clone();
+    let sim_cfg = method.sim_config(&file.sim);
+    std::fs::write(out.join("config.toml"), toml::to_string(file)?)
+        .with_context(|| format!("cannot write {}", out.join("config.toml").display()))?;
+    let run_info = RunInfo {
+        run_id: out
+            .file_name()
+            .map_or_else(|| "run".into(), |n| n.to_string_lossy().into_owned()),
+        setting: setting.name().to_string(),
+        run_seed,
+    };
+    let metrics_path = out.join("metrics.jsonl");
+    let mut metrics = std::fs::OpenOptions::new()
+        .create(true)
+        .append(true)
+        .open(&metrics_path)
+        .with_context(|| format!("cannot open {}", metrics_path.display()))?;
+    let save = |core: &LearnerCore, path: &Path| -> anyhow::Result<()> {
+        checkpoint::save(path, core, &sim_cfg, &run_info)?;
+        Ok(())
+    };
+    let mut plain = PlainProgress {
+        last: Instant::now(),
+    };
+    let mut env = Env::new(sim_cfg.clone(), setting, 0)?;
+    let start = Instant::now();
+    eprintln!(
+        "training {method} on {setting} (seed {run_seed}) in {}: {} demonstrations × {} epochs, {} RL episodes",
+        out.display(),
+        train.imitation.episodes,
+        train.imitation.epochs,
+        train.rl.episodes
+    );
+
+    // Imitation learning (skipped when the checkpoint already has it).
+    if !core.counters().imitation_done {
+        let bar = progress_bar(train.imitation.episodes, "demos");
+        for k in 0..train.imitation.episodes {
+            let ep = rollout(
+                &mut env,
+                episode_seed(run_seed, DEMO_STREAM, k),
+                Behaviour::Orca {
+                    safety_space_m: train.imitation.safety_space_m,
+                },
+            )?;
+            core.add_episode(&ep, true)?;
+            bar.inc(1);
+            plain.tick(&bar, false);
+            if stop.load(Ordering::SeqCst) {
+                bail!("interrupted during demonstrations (nothing to checkpoint yet; rerun the same command)");
+            }
+        }
+        bar.finish_and_clear();
+        let bar = progress_bar(train.imitation.epochs as u64, "imitation");
+        bar.set_message(format!("{} transitions", core.replay().len()));
+        core.imitation(train.imitation.epochs, |epoch, loss| {
+            bar.inc(1);
+            bar.set_message(format!("loss {loss:.5}"));
+            plain.tick(&bar, false);
+            let line = serde_json::json!({"phase": "imitation", "epoch": epoch, "loss": loss, "wall_s": start.elapsed().as_secs_f64()});
+            let _ = writeln!(metrics, "{line}");
+        })?;
+        bar.finish_and_clear();
+        core.start_rl();
+        save(&core, &ckpt_dir.join("imitation.ckpt"))?;
+        save(&core, &latest)?;
+        eprintln!(
+            "imitation done: loss {:.5}, {} transitions",
+            core.imitation_loss()?,
+            core.replay().len()
+        );
+    }
+
+    // Deep V-learning.
+    let mut lookahead = Lookahead::new(train.gamma, train.human_model.into(), method.human_order());
+    let mut window: VecDeque<Outcome> = VecDeque::with_capacity(100);
+    let first = core.counters().rl_episodes;
+    let bar = progress_bar(train.rl.episodes, "rl");
+    bar.set_position(first);
+    bar.reset_eta();
+    let rl_start = Instant::now();
+    let mut interrupted = false;
+    for k in first..train.rl.episodes {
+        let epsilon = core.epsilon();
+        let version = core.counters().policy_version;
+        let ep = rollout(
+            &mut env,
+            episode_seed(run_seed, RL_STREAM, k),
+            Behaviour::Net {
+                net: core.online(),
+                lookahead: &mut lookahead,
+                epsilon,
+                policy_version: version,
+            },
+        )?;
+        core.add_episode(&ep, false)?;
+        let loss = core.train_rl(train.rl.batches_per_episode)?;
+        if window.len() == 100 {
+            window.pop_front();
+        }
+        window.push_back(ep.outcome);
+        let rate =
+            |o: Outcome| window.iter().filter(|x| **x == o).count() as f64 / window.len() as f64;
+        let c = core.counters();
+        let done = (k + 1 - first) as f64;
+        let eps_per_s = done / rl_start.elapsed().as_secs_f64().max(1e-9);
+        let line = MetricsLine {
+            phase: "rl",
+            episode: k,
+            epsilon,
+            outcome: ep.outcome.name(),
+            steps: ep.summary.steps,
+            return_sum: ep.summary.return_sum,
+            loss,
+            success_rate_window: rate(Outcome::ReachGoal),
+            collision_rate_window: rate(Outcome::Collision),
+            timeout_rate_window: rate(Outcome::Timeout),
+            policy_version: c.policy_version,
+            env_steps: c.env_steps,
+            replay_size: core.replay().len(),
+            wall_s: start.elapsed().as_secs_f64(),
+        };
+        writeln!(metrics, "{}", serde_json::to_string(&line)?)?;
+        bar.inc(1);
+        bar.set_message(format!(
+            "ε {epsilon:.3} success {:.2} loss {loss:.5} {eps_per_s:.2} ep/s",
+            line.success_rate_window
+        ));
+        plain.tick(&bar, false);
+        let every = train.checkpoint_every_episodes;
+        if every > 0 && (k + 1) % every == 0 {
+            save(&core, &latest)?;
+        }
+        if stop.load(Ordering::SeqCst) {
+            interrupted = true;
+            break;
+        }
+    }
+    plain.tick(&bar, true);
+    bar.finish_and_clear();
+    save(&core, &latest)?;
+    metrics.flush()?;
+    if interrupted {
+        eprintln!(
+            "checkpoint written to {} after {} RL episodes; continue with the same command and --resume",
+            latest.display(),
+            core.counters().rl_episodes
+        );
+        return Ok(());
+    }
+
+    // Final evaluation on the setting's test seeds.
+    eprintln!(
+        "evaluating on {} test episodes of {setting} ...",
+        train.eval_episodes
+    );
+    let subject = Subject {
+        method,
+        net: Some(core.online()),
+        gamma: train.gamma,
+        human_model: train.human_model.into(),
+        orca_safety_space_m: 0.0,
+    };
+    let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
+    let results = evaluate(
+        subject,
+        &file.sim,
+        &[setting],
+        train.test_seed_start,
+        train.eval_episodes,
+        threads,
+    )?;
+    let report = Report {
+        method: method.name().to_string(),
+        policy_version: core.counters().policy_version,
+        test_seed_start: train.test_seed_start,
+        settings: results
+            .iter()
+            .map(|r| SettingReport::new(r.setting.name(), &r.aggregate))
+            .collect(),
+    };
+    std::fs::write(
+        out.join("report.json"),
+        serde_json::to_string_pretty(&report)?,
+    )?;
+    let md = report.markdown();
+    std::fs::write(out.join("report.md"), &md)?;
+    println!("{md}");
+    println!(
+        "run directory: {} (config.toml, checkpoints/, metrics.jsonl, report.md, report.json); {:.1} s in all",
+        out.display(),
+        start.elapsed().as_secs_f64()
+    );
+    Ok(())
+}

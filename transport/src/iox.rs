@@ -1,0 +1,474 @@
+//! iceoryx2 data plane: zero-copy `[u8]` publish/subscribe on one machine.
+//!
+//! Every topic maps to one publish-subscribe service of `[u8]` samples with a `u64` user header
+//! (FNV-1a hash of the concrete key expression, so a concrete subscriber of a many-to-one
+//! family skips other keys), plus an event service of the same name that publishers notify
+//! after each send (subscribers block on it instead of polling). Latest-value services keep a
+//! history of one sample; a new subscriber notifies `<service>/join`, and a thread of the
+//! latest-value publisher then calls `update_connections`, which hands the subscriber the
+//! current value at once (iceoryx2 delivers history only from the publisher side).
+
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+
+use iceoryx2::port::backpressure_strategy::BackpressureStrategy;
+use iceoryx2::port::listener::Listener;
+use iceoryx2::port::notifier::Notifier;
+use iceoryx2::port::publisher::Publisher;
+use iceoryx2::port::subscriber::Subscriber;
+use iceoryx2::port::update_connections::UpdateConnections;
+use iceoryx2::port::{BackpressureAction, BackpressureInfo, LoanError};
+use iceoryx2::prelude::*;
+use iceoryx2::service::port_factory::{event, publish_subscribe};
+use proto::{Delivery, Fanout, RunId, SenderId};
+
+use crate::config::IceoryxConfig;
+use crate::error::{iox_err, TransportError};
+
+/// Thread-safe ports (Send + Sync), so handles can move between threads.
+type Svc = ipc_threadsafe::Service;
+
+/// One iceoryx2 node per transport.
+pub(crate) struct IoxNode {
+    /// Always `Some` until dropped (taken in `Drop` to release it before the final cleanup).
+    node: Option<Node<Svc>>,
+    config: iceoryx2::config::Config,
+    cfg: IceoryxConfig,
+    publish_timeout: Duration,
+}
+
+/// What the transport's iceoryx2 node cleaned up.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct StaleCleanup {
+    /// Dead nodes whose resources were removed.
+    pub cleaned: u64,
+    /// Dead nodes that could not be cleaned (permissions, concurrent cleanup).
+    pub failed: u64,
+}
+
+pub(crate) fn key_hash(key: &str) -> u64 {
+    // FNV-1a, 64 bit.
+    key.bytes().fold(0xcbf2_9ce4_8422_2325u64, |h, b| {
+        (h ^ u64::from(b)).wrapping_mul(0x0000_0100_0000_01b3)
+    })
+}
+
+fn service_name(name: &str) -> Result<ServiceName, TransportError> {
+    ServiceName::new(name).map_err(iox_err("service name"))
+}
+
+impl IoxNode {
+    pub(crate) fn open(
+        run: &RunId,
+        sender: SenderId,
+        cfg: &IceoryxConfig,
+        publish_timeout: Duration,
+    ) -> Result<Self, TransportError> {
+        let mut config = iceoryx2::config::Config::default();
+        let prefix = cfg
+            .prefix
+            .clone()
+            .unwrap_or_else(|| format!("fsrl_{}_", run.as_str().replace('.', "_")));
+        config.global.prefix = FileName::new(prefix.as_bytes()).map_err(iox_err("prefix"))?;
+        if let Some(root) = &cfg.root_path {
+            let root = Path::new(root.as_bytes()).map_err(iox_err("root path"))?;
+            config.global.set_root_path(&root);
+        }
+        let name = NodeName::new(&sender.to_string()).map_err(iox_err("node name"))?;
+        let node = NodeBuilder::new()
+            .name(&name)
+            .config(&config)
+            .signal_handling_mode(SignalHandlingMode::Disabled)
+            .create::<Svc>()
+            .map_err(iox_err("create node"))?;
+        Ok(Self {
+            node: Some(node),
+            config,
+            cfg: cfg.clone(),
+            publish_timeout,
+        })
+    }
+
+    fn node(&self) -> Result<&Node<Svc>, TransportError> {
+        self.node.as_ref().ok_or(TransportError::Iceoryx {
+            op: "use node",
+            detail: "node already released".into(),
+        })
+    }
+
+    /// Removes the resources of dead nodes (crashed processes) of this run.
+    pub(crate) fn cleanup_stale(&self) -> StaleCleanup {
+        let Some(node) = &self.node else {
+            return StaleCleanup::default();
+        };
+        let s = node.try_cleanup_dead_nodes();
+        StaleCleanup {
+            cleaned: s.cleanups,
+            failed: s.failed_cleanups,
+        }
+    }
+
+    fn pubsub(
+        &self,
+        name: &str,
+        delivery: Delivery,
+        fanout: Fanout,
+    ) -> Result<publish_subscribe::PortFactory<Svc, [u8], u64>, TransportError> {
+        let c = &self.cfg;
+        let (max_pubs, max_subs) = match fanout {
+            Fanout::ManyToOne => (c.max_processes, c.max_collectors),
+            Fanout::OneToMany => (2, c.max_processes),
+        };
+        let (buffer, history, overflow) = match delivery {
+            Delivery::Reliable => (c.subscriber_buffer, 0, false),
+            Delivery::Latest => (2, 1, true),
+            Delivery::BestEffort => (c.subscriber_buffer, 0, true),
+        };
+        self.node()?
+            .service_builder(&service_name(name)?)
+            .publish_subscribe::<[u8]>()
+            .user_header::<u64>()
+            .max_publishers(max_pubs)
+            .max_subscribers(max_subs)
+            .max_nodes(c.max_processes)
+            .subscriber_max_buffer_size(buffer)
+            .subscriber_max_borrowed_samples(2)
+            .history_size(history)
+            .enable_safe_overflow(overflow)
+            .open_or_create()
+            .map_err(iox_err("open publish-subscribe service"))
+    }
+
+    fn events(&self, name: &str) -> Result<event::PortFactory<Svc>, TransportError> {
+        let n = self.cfg.max_processes;
+        self.node()?
+            .service_builder(&service_name(name)?)
+            .event()
+            .max_notifiers(n)
+            .max_listeners(n)
+            .max_nodes(n)
+            .open_or_create()
+            .map_err(iox_err("open event service"))
+    }
+
+    pub(crate) fn publisher(
+        &self,
+        service: &str,
+        key: &str,
+        delivery: Delivery,
+        fanout: Fanout,
+    ) -> Result<IoxPublisher, TransportError> {
+        let factory = self.pubsub(service, delivery, fanout)?;
+        let events = self.events(service)?;
+        let builder = factory.publisher_builder().max_loaned_samples(2);
+        let builder = match delivery {
+            Delivery::Latest => builder
+                .initial_max_slice_len(self.cfg.latest_sample_bytes)
+                .allocation_strategy(AllocationStrategy::Static),
+            Delivery::Reliable | Delivery::BestEffort => builder
+                .initial_max_slice_len(self.cfg.initial_sample_bytes)
+                .allocation_strategy(AllocationStrategy::PowerOfTwo),
+        };
+        let builder = match delivery {
+            Delivery::Reliable => {
+                let timeout = self.publish_timeout;
+                builder
+                    .backpressure_strategy(BackpressureStrategy::RetryUntilDelivered)
+                    .set_backpressure_handler(move |info: &BackpressureInfo| {
+                        backpressure(info, timeout)
+                    })
+            }
+            Delivery::Latest | Delivery::BestEffort => {
+                builder.backpressure_strategy(BackpressureStrategy::DiscardData)
+            }
+        };
+        let publisher = Arc::new(builder.create().map_err(iox_err("create publisher"))?);
+        let notifier = Arc::new(
+            events
+                .notifier_builder()
+                .create()
+                .map_err(iox_err("create notifier"))?,
+        );
+        let joiner = match delivery {
+            Delivery::Latest => Some(JoinWatcher::start(
+                self.events(&join_service(service))?,
+                Arc::clone(&publisher),
+                Arc::clone(&notifier),
+            )?),
+            _ => None,
+        };
+        Ok(IoxPublisher {
+            publisher,
+            notifier,
+            key_hash: key_hash(key),
+            key: key.to_string(),
+            timeout_ms: self.publish_timeout.as_millis() as u64,
+            joiner,
+            factory,
+            _events: events,
+        })
+    }
+
+    pub(crate) fn subscriber(
+        &self,
+        service: &str,
+        key: Option<&str>,
+        delivery: Delivery,
+        fanout: Fanout,
+    ) -> Result<IoxSubscriber, TransportError> {
+        let factory = self.pubsub(service, delivery, fanout)?;
+        let events = self.events(service)?;
+        let listener = events
+            .listener_builder()
+            .create()
+            .map_err(iox_err("create listener"))?;
+        let builder = match delivery {
+            Delivery::Latest => factory
+                .subscriber_builder()
+                .buffer_size(2)
+                .history_request(1),
+            Delivery::Reliable | Delivery::BestEffort => factory
+                .subscriber_builder()
+                .buffer_size(self.cfg.subscriber_buffer),
+        };
+        let subscriber = builder.create().map_err(iox_err("create subscriber"))?;
+        if delivery == Delivery::Latest {
+            // Ask the publisher (if any) to hand us its current value now.
+            let join = self.events(&join_service(service))?;
+            let notifier = join
+                .notifier_builder()
+                .create()
+                .map_err(iox_err("create join notifier"))?;
+            notifier.notify().map_err(iox_err("notify join"))?;
+        }
+        Ok(IoxSubscriber {
+            subscriber,
+            listener,
+            filter: key.map(key_hash),
+            _factory: factory,
+            _events: events,
+        })
+    }
+}
+
+impl Drop for IoxNode {
+    fn drop(&mut self) {
+        // Release our node (and with it every service segment we were the last user of).
+        drop(self.node.take());
+        // iceoryx2 keeps one tiny per-domain segment (`<prefix>…_node.<version>.global_mgmt`,
+        // a node-id counter) on purpose. Our domain is per run: when no node of it is left on
+        // this machine, remove it too, so shutting down leaves no shared memory behind.
+        let mut others = 0usize;
+        let listed = Node::<Svc>::list(&self.config, |_| {
+            others += 1;
+            CallbackProgression::Continue
+        });
+        if listed.is_ok() && others == 0 {
+            // SAFETY: no node of this domain (prefix) exists any more, so no process uses the
+            // segment; a process starting concurrently just recreates it (node ids also embed
+            // the pid and creation time, so a reset counter cannot make them collide).
+            let removed =
+                unsafe { iceoryx2::testing::remove_global_mgmt_segment::<Svc>(&self.config) };
+            if let Err(e) = removed {
+                tracing::debug!(error = ?e, "could not remove the iceoryx2 management segment");
+            }
+        }
+    }
+}
+
+fn join_service(service: &str) -> String {
+    format!("{service}/join")
+}
+
+fn backpressure(info: &BackpressureInfo, timeout: Duration) -> BackpressureAction {
+    if info.elapsed_time >= timeout {
+        return BackpressureAction::DiscardDataAndFail;
+    }
+    // Spin briefly, then yield the CPU while the receiver drains.
+    if info.retries > 64 {
+        std::thread::sleep(Duration::from_micros(50));
+    } else {
+        std::thread::yield_now();
+    }
+    BackpressureAction::Retry
+}
+
+/// Publisher side of one topic.
+pub(crate) struct IoxPublisher {
+    publisher: Arc<Publisher<Svc, [u8], u64>>,
+    notifier: Arc<Notifier<Svc>>,
+    key_hash: u64,
+    key: String,
+    timeout_ms: u64,
+    joiner: Option<JoinWatcher>,
+    factory: publish_subscribe::PortFactory<Svc, [u8], u64>,
+    _events: event::PortFactory<Svc>,
+}
+
+impl IoxPublisher {
+    /// Copies `bytes` into a shared-memory sample, sends it and wakes the subscribers.
+    pub(crate) fn send(&self, bytes: &[u8]) -> Result<usize, TransportError> {
+        let mut sample = self
+            .publisher
+            .loan_slice_uninit(bytes.len())
+            .map_err(|e| match e {
+                LoanError::ExceedsMaxLoanSize => TransportError::Iceoryx {
+                    op: "loan sample",
+                    detail: format!(
+                        "{} bytes exceed the fixed sample size of {} (raise \
+                         iceoryx2.latest_sample_bytes)",
+                        bytes.len(),
+                        self.publisher.initial_max_slice_len()
+                    ),
+                },
+                other => iox_err("loan sample")(other),
+            })?;
+        *sample.user_header_mut() = self.key_hash;
+        let sample = sample.write_from_slice(bytes);
+        let delivered = sample.send().map_err(|e| {
+            tracing::debug!(key = %self.key, error = ?e, "iceoryx2 send failed");
+            TransportError::PublishTimeout {
+                topic: self.key.clone(),
+                timeout_ms: self.timeout_ms,
+            }
+        })?;
+        self.notifier.notify().map_err(iox_err("notify"))?;
+        Ok(delivered)
+    }
+}
+
+impl IoxPublisher {
+    /// Subscribers currently attached to the service.
+    pub(crate) fn subscriber_count(&self) -> usize {
+        self.factory.dynamic_config().number_of_subscribers()
+    }
+}
+
+impl Drop for IoxPublisher {
+    fn drop(&mut self) {
+        if let Some(j) = self.joiner.take() {
+            j.stop();
+        }
+    }
+}
+
+/// Thread that serves late subscribers of a latest-value topic (see module docs).
+struct JoinWatcher {
+    stop: Arc<AtomicBool>,
+    thread: Option<JoinHandle<()>>,
+    _events: event::PortFactory<Svc>,
+}
+
+impl JoinWatcher {
+    fn start(
+        events: event::PortFactory<Svc>,
+        publisher: Arc<Publisher<Svc, [u8], u64>>,
+        notifier: Arc<Notifier<Svc>>,
+    ) -> Result<Self, TransportError> {
+        let listener = events
+            .listener_builder()
+            .create()
+            .map_err(iox_err("create join listener"))?;
+        let stop = Arc::new(AtomicBool::new(false));
+        let stop2 = Arc::clone(&stop);
+        let thread = std::thread::Builder::new()
+            .name("iox2-latest-join".into())
+            .spawn(move || {
+                while !stop2.load(Ordering::Relaxed) {
+                    let mut joined = false;
+                    if let Err(e) =
+                        listener.timed_wait(|_| joined = true, Duration::from_millis(20))
+                    {
+                        tracing::warn!(error = ?e, "iceoryx2 join listener failed");
+                        return;
+                    }
+                    if joined {
+                        // Delivers the history sample to the new subscriber, then wakes it.
+                        if let Err(e) = publisher.update_connections() {
+                            tracing::warn!(error = ?e, "iceoryx2 update_connections failed");
+                        }
+                        if let Err(e) = notifier.notify() {
+                            tracing::warn!(error = ?e, "iceoryx2 notify failed");
+                        }
+                    }
+                }
+            })
+            .map_err(|e| TransportError::Iceoryx {
+                op: "spawn join thread",
+                detail: e.to_string(),
+            })?;
+        Ok(Self {
+            stop,
+            thread: Some(thread),
+            _events: events,
+        })
+    }
+
+    fn stop(mut self) {
+        self.stop.store(true, Ordering::Relaxed);
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+    }
+}
+
+/// Subscriber side of one topic.
+pub(crate) struct IoxSubscriber {
+    subscriber: Subscriber<Svc, [u8], u64>,
+    listener: Listener<Svc>,
+    filter: Option<u64>,
+    _factory: publish_subscribe::PortFactory<Svc, [u8], u64>,
+    _events: event::PortFactory<Svc>,
+}
+
+impl IoxSubscriber {
+    /// Takes the next sample of our key, if any, and hands its bytes to `f` (zero-copy, while
+    /// the sample is borrowed from shared memory). Returns whether a sample was handed over.
+    pub(crate) fn try_take<R>(
+        &self,
+        mut f: impl FnMut(&[u8], &str) -> R,
+    ) -> Result<Option<R>, TransportError> {
+        loop {
+            let Some(sample) = self.subscriber.receive().map_err(iox_err("receive"))? else {
+                return Ok(None);
+            };
+            if let Some(h) = self.filter {
+                if *sample.user_header() != h {
+                    continue;
+                }
+            }
+            let source = format!("iceoryx2 publisher {:?}", sample.origin());
+            return Ok(Some(f(sample.payload(), &source)));
+        }
+    }
+
+    /// Blocks until a publisher signals new data or `timeout` passes.
+    pub(crate) fn wait(&self, timeout: Duration) -> Result<(), TransportError> {
+        self.listener
+            .timed_wait(|_| {}, timeout)
+            .map_err(iox_err("wait"))?;
+        Ok(())
+    }
+
+    /// Repeats `try_take` until `f` accepts a sample (returns `Some`) or the deadline passes.
+    pub(crate) fn recv_until<T>(
+        &self,
+        deadline: Instant,
+        mut f: impl FnMut(&[u8], &str) -> Option<T>,
+    ) -> Result<Option<T>, TransportError> {
+        loop {
+            while let Some(r) = self.try_take(&mut f)? {
+                if r.is_some() {
+                    return Ok(r);
+                }
+            }
+            let now = Instant::now();
+            if now >= deadline {
+                return Ok(None);
+            }
+            self.wait(deadline - now)?;
+        }
+    }
+}

@@ -1,0 +1,6 @@
+//! The transport test suite, written once and run against both backends (`zenoh` and
+//! `iceoryx2` data planes). Loopback only, multicast off, ephemeral ports, unique run ids and
+//! iceoryx2 prefixes per test, every wait bounded by a timeout.
+
+mod harness;
+mod suite;
