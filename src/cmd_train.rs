@@ -213,6 +213,7 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
             resolved.method,
             resolved.file.train.clone(),
             resolved.file.sim.humans.count,
+            resolved.file.sim.dt_s,
             resolved.file.run.seed,
         )?;
         (core, resolved)
@@ -284,7 +285,7 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
             let _ = writeln!(metrics, "{line}");
         })?;
         bar.finish_and_clear();
-        core.start_rl();
+        core.start_rl()?;
         save(&core, &ckpt_dir.join("imitation.ckpt"))?;
         save(&core, &latest)?;
         eprintln!(

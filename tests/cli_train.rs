@@ -11,9 +11,24 @@ fn fsrl() -> Command {
 
 fn short(out: &Path) -> Command {
     let mut c = fsrl();
-    c.args(["train", "--single-process", "--method", "sarl", "--setting", "env2-visible"])
-        .args(["--il-episodes", "8", "--il-epochs", "2", "--eval-episodes", "4", "--out"])
-        .arg(out);
+    c.args([
+        "train",
+        "--single-process",
+        "--method",
+        "sarl",
+        "--setting",
+        "env2-visible",
+    ])
+    .args([
+        "--il-episodes",
+        "8",
+        "--il-epochs",
+        "2",
+        "--eval-episodes",
+        "4",
+        "--out",
+    ])
+    .arg(out);
     c
 }
 
@@ -34,22 +49,38 @@ fn a_short_run_leaves_a_complete_run_directory_and_resumes() {
     let stdout = String::from_utf8_lossy(&o.stdout);
     let stderr = String::from_utf8_lossy(&o.stderr);
     assert!(o.status.success(), "{stdout}\n{stderr}");
-    for f in ["config.toml", "checkpoints/latest.ckpt", "checkpoints/imitation.ckpt", "report.md", "report.json"] {
+    for f in [
+        "config.toml",
+        "checkpoints/latest.ckpt",
+        "checkpoints/imitation.ckpt",
+        "report.md",
+        "report.json",
+    ] {
         assert!(out.join(f).is_file(), "missing {f}");
     }
     let cfg = std::fs::read_to_string(out.join("config.toml")).unwrap();
-    assert!(cfg.contains("method = \"sarl\"") && cfg.contains("setting = \"env2-visible\""), "{cfg}");
-    assert!(cfg.contains("foresight = true"), "the resolved file keeps the sim defaults:\n{cfg}");
+    assert!(
+        cfg.contains("method = \"sarl\"") && cfg.contains("setting = \"env2-visible\""),
+        "{cfg}"
+    );
+    assert!(
+        cfg.contains("foresight = true"),
+        "the resolved file keeps the sim defaults:\n{cfg}"
+    );
     let lines = rl_lines(&out);
     assert_eq!(lines.len(), 3);
     for (k, l) in lines.iter().enumerate() {
         assert_eq!(l["episode"], k as u64);
         assert!(l["loss"].as_f64().unwrap().is_finite());
     }
-    let report: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
     assert_eq!(report["settings"][0]["setting"], "env2-visible");
     assert_eq!(report["settings"][0]["episodes"], 4);
-    let rates: f64 = ["success", "collision", "timeout"].iter().map(|k| report["settings"][0][k].as_f64().unwrap()).sum();
+    let rates: f64 = ["success", "collision", "timeout"]
+        .iter()
+        .map(|k| report["settings"][0][k].as_f64().unwrap())
+        .sum();
     assert!((rates - 1.0).abs() < 1e-9);
     assert!(stdout.contains("| env2-visible | 4 |"), "{stdout}");
 
@@ -59,11 +90,17 @@ fn a_short_run_leaves_a_complete_run_directory_and_resumes() {
     assert!(String::from_utf8_lossy(&o.stderr).contains("--resume"));
 
     // --resume continues where it stopped.
-    let o = short(&out).args(["--rl-episodes", "5", "--resume"]).output().unwrap();
+    let o = short(&out)
+        .args(["--rl-episodes", "5", "--resume"])
+        .output()
+        .unwrap();
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     assert!(String::from_utf8_lossy(&o.stderr).contains("3 RL episodes done"));
     let lines = rl_lines(&out);
-    let episodes: Vec<u64> = lines.iter().map(|l| l["episode"].as_u64().unwrap()).collect();
+    let episodes: Vec<u64> = lines
+        .iter()
+        .map(|l| l["episode"].as_u64().unwrap())
+        .collect();
     assert_eq!(episodes, vec![0, 1, 2, 3, 4]);
 }
 
@@ -84,7 +121,10 @@ fn sigint_writes_a_checkpoint_and_the_run_resumes() {
         assert!(child.try_wait().unwrap().is_none(), "trainer exited early");
         std::thread::sleep(Duration::from_millis(50));
     }
-    let status = Command::new("kill").args(["-INT", &child.id().to_string()]).status().unwrap();
+    let status = Command::new("kill")
+        .args(["-INT", &child.id().to_string()])
+        .status()
+        .unwrap();
     assert!(status.success());
     let o = child.wait_with_output().unwrap();
     let stderr = String::from_utf8_lossy(&o.stderr);
@@ -93,8 +133,15 @@ fn sigint_writes_a_checkpoint_and_the_run_resumes() {
     let done = rl_lines(&out).len() as u64;
     assert!(done >= 1);
     let loaded = learner::checkpoint::load(&out.join("checkpoints/latest.ckpt")).unwrap();
-    assert_eq!(loaded.core.counters().rl_episodes, done, "the checkpoint holds every logged episode");
-    assert!(!out.join("report.json").exists(), "no evaluation after an interrupt");
+    assert_eq!(
+        loaded.core.counters().rl_episodes,
+        done,
+        "the checkpoint holds every logged episode"
+    );
+    assert!(
+        !out.join("report.json").exists(),
+        "no evaluation after an interrupt"
+    );
 }
 
 #[test]
@@ -103,7 +150,14 @@ fn bad_run_configuration_lists_every_problem() {
     let cfg = dir.path().join("bad.toml");
     std::fs::write(&cfg, "[train]\ngamma = 1.5\n[train.rl]\nbatch_size = 0\n").unwrap();
     let o = fsrl()
-        .args(["train", "--method", "dqn", "--setting", "env9-visible", "--config"])
+        .args([
+            "train",
+            "--method",
+            "dqn",
+            "--setting",
+            "env9-visible",
+            "--config",
+        ])
         .arg(&cfg)
         .arg("--out")
         .arg(dir.path().join("run"))
@@ -111,7 +165,13 @@ fn bad_run_configuration_lists_every_problem() {
         .unwrap();
     assert!(!o.status.success());
     let stderr = String::from_utf8_lossy(&o.stderr);
-    for needle in ["4 problems", "unknown method `dqn`", "unknown setting `env9-visible`", "train.gamma", "train.rl.batch_size"] {
+    for needle in [
+        "4 problems",
+        "unknown method `dqn`",
+        "unknown setting `env9-visible`",
+        "train.gamma",
+        "train.rl.batch_size",
+    ] {
         assert!(stderr.contains(needle), "missing {needle:?} in\n{stderr}");
     }
 }

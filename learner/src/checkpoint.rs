@@ -399,8 +399,22 @@ fn rebuild(pl: Payload) -> Result<Loaded, String> {
         return Err(format!("training config: {}", problems.join("; ")));
     }
     pl.sim.validate().map_err(|e| e.to_string())?;
+    let mut core = LearnerCore::assemble(
+        pl.method,
+        pl.train,
+        trainer,
+        replay,
+        rng,
+        counters,
+        pl.sim.dt_s,
+    );
+    if counters.imitation_done {
+        // Cached targets are not stored: they follow from the target network.
+        core.refresh_targets(0..core.replay().len())
+            .map_err(|e| e.to_string())?;
+    }
     Ok(Loaded {
-        core: LearnerCore::assemble(pl.method, pl.train, trainer, replay, rng, counters),
+        core,
         sim: pl.sim,
         run: pl.run,
     })

@@ -29,6 +29,8 @@ pub enum LearnerError {
     },
     #[error(transparent)]
     Policy(#[from] PolicyError),
+    #[error("out of phase: {0}")]
+    Phase(&'static str),
 }
 
 /// Progress counters (also checkpointed).
@@ -57,18 +59,23 @@ pub struct LearnerCore {
     rng: ChaCha8Rng,
     counters: Counters,
     order: HumanOrder,
+    dt_s: f64,
     humans: usize,
     order_buf: Vec<(f64, usize)>,
     feats: Vec<f32>,
     batch: Batch,
+    target_buf: Vec<f32>,
+    target_scratch: policy::Scratch,
 }
 
 impl LearnerCore {
     /// A new run of `method` whose episodes have `humans` humans; weights initialised from `seed`.
+    /// `dt_s` is the simulator's step (for the per-step discount γ^{dt·v_pref}).
     pub fn new(
         method: Method,
         train: TrainConfig,
         humans: usize,
+        dt_s: f64,
         seed: u64,
     ) -> Result<Self, LearnerError> {
         let net_cfg = method.net().ok_or(LearnerError::NotTrainable(method))?;
@@ -84,6 +91,7 @@ impl LearnerCore {
             Replay::new(0, humans),
             ChaCha8Rng::seed_from_u64(seed ^ 0x1EA7_0E12),
             Counters::default(),
+            dt_s,
         ))
     }
 
@@ -94,6 +102,7 @@ impl LearnerCore {
         replay: Replay,
         rng: ChaCha8Rng,
         counters: Counters,
+        dt_s: f64,
     ) -> Self {
         let humans = replay.humans();
         let replay = if replay.capacity() == 0 {
@@ -103,6 +112,7 @@ impl LearnerCore {
         };
         Self {
             order: method.human_order(),
+            dt_s,
             method,
             train,
             trainer,
@@ -113,6 +123,8 @@ impl LearnerCore {
             order_buf: Vec::new(),
             feats: Vec::new(),
             batch: Batch::default(),
+            target_buf: Vec::new(),
+            target_scratch: policy::Scratch::default(),
         }
     }
 
@@ -236,8 +248,10 @@ impl LearnerCore {
         if !keep {
             return Ok(false);
         }
-        let dt = ep.summary.time_s / ep.summary.steps.max(1) as f64;
-        let discount = self.train.gamma.powf(dt * ep.states[0].robot.v_pref_mps) as f32;
+        let discount = self
+            .train
+            .gamma
+            .powf(self.dt_s * ep.states[0].robot.v_pref_mps) as f32;
         // Features of every state, once.
         self.feats.clear();
         for s in &ep.states {
@@ -257,16 +271,29 @@ impl LearnerCore {
             mc = ep.rewards[t].total as f32 + discount * mc;
             returns[t] = mc;
         }
+        let mut first_slot = None;
         for (t, &mc_return) in returns.iter().enumerate() {
             // The last step ends the episode (a timeout is terminal for the target, SPEC §5).
             let terminal = t + 1 == t_len;
-            self.replay.push(Transition {
+            let slot = self.replay.push(Transition {
                 state: &self.feats[t * row..(t + 1) * row],
                 next_state: &self.feats[(t + 1) * row..(t + 2) * row],
                 reward: ep.rewards[t].total as f32,
                 discount: if terminal { 0.0 } else { discount },
                 mc_return,
             });
+            first_slot.get_or_insert(slot);
+        }
+        if self.counters.imitation_done {
+            // New transitions get their targets from the current target network.
+            let first = first_slot.expect("an episode has at least one step");
+            let cap = self.replay.capacity();
+            if first + t_len <= cap {
+                self.refresh_targets(first..first + t_len)?;
+            } else {
+                self.refresh_targets(first..cap)?;
+                self.refresh_targets(0..first + t_len - cap)?;
+            }
         }
         Ok(true)
     }
@@ -323,18 +350,53 @@ impl LearnerCore {
     }
 
     /// Ends imitation: fresh Adam at the RL learning rate, target network = online network.
-    pub fn start_rl(&mut self) {
+    pub fn start_rl(&mut self) -> Result<(), LearnerError> {
         let online = self.trainer.online().clone();
         self.trainer = Trainer::new(
             online,
             AdamConfig::with_lr(self.train.rl.learning_rate as f32),
         );
         self.counters.imitation_done = true;
+        self.refresh_targets(0..self.replay.len())
+    }
+
+    /// Recomputes the cached V-learning targets y = r + discount·V_target(s') of slots `range`.
+    /// Between target-network refreshes V_target is fixed, so caching y is exactly equivalent
+    /// to computing it at every update, at a fraction of the cost.
+    pub(crate) fn refresh_targets(
+        &mut self,
+        range: std::ops::Range<usize>,
+    ) -> Result<(), LearnerError> {
+        const CHUNK: usize = 512;
+        let mut start = range.start;
+        while start < range.end {
+            let end = (start + CHUNK).min(range.end);
+            let (next, rewards, discounts) = self.replay.target_inputs(start..end);
+            let states = StateBatch::new(next, end - start, self.humans)?;
+            self.target_buf.resize(end - start, 0.0);
+            self.trainer.target().values_into(
+                states,
+                &mut self.target_scratch,
+                &mut self.target_buf,
+            );
+            for ((y, r), d) in self.target_buf.iter_mut().zip(rewards).zip(discounts) {
+                *y = r + d * *y;
+            }
+            if !self.target_buf.iter().all(|y| y.is_finite()) {
+                return Err(PolicyError::NonFinite("value targets").into());
+            }
+            self.replay.set_targets(start, &self.target_buf);
+            start = end;
+        }
+        Ok(())
     }
 
     /// `batches` V-learning updates on uniform samples from replay; returns the mean loss.
     /// Bumps the policy version and refreshes the target network on schedule.
     pub fn train_rl(&mut self, batches: u32) -> Result<f32, LearnerError> {
+        if !self.counters.imitation_done {
+            return Err(LearnerError::Phase("train_rl before start_rl"));
+        }
         let bs = self.train.rl.batch_size;
         let (mut sum, mut n) = (0f64, 0u32);
         for _ in 0..batches {
@@ -344,11 +406,7 @@ impl LearnerCore {
             self.replay.sample(&mut self.rng, bs, &mut self.batch);
             let b = self.batch.rewards.len();
             let states = StateBatch::new(&self.batch.states, b, self.humans)?;
-            let next = StateBatch::new(&self.batch.next_states, b, self.humans)?;
-            sum += self
-                .trainer
-                .td_step(states, next, &self.batch.rewards, &self.batch.discounts)?
-                as f64;
+            sum += self.trainer.fit(states, &self.batch.targets)? as f64;
             n += 1;
             self.counters.updates += 1;
         }
@@ -359,6 +417,7 @@ impl LearnerCore {
             .is_multiple_of(self.train.rl.target_update_episodes)
         {
             self.trainer.sync_target();
+            self.refresh_targets(0..self.replay.len())?;
         }
         Ok(if n == 0 {
             f32::NAN

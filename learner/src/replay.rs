@@ -20,6 +20,9 @@ pub struct Replay {
     discounts: Vec<f32>,
     /// Discounted Monte-Carlo return from the state (imitation targets).
     returns: Vec<f32>,
+    /// Cached V-learning target y = r + discount·V_target(s'), valid while the target network
+    /// is unchanged (not checkpointed: recomputed from the target network).
+    targets: Vec<f32>,
 }
 
 /// One transition to store.
@@ -51,6 +54,7 @@ pub struct Batch {
     pub rewards: Vec<f32>,
     pub discounts: Vec<f32>,
     pub returns: Vec<f32>,
+    pub targets: Vec<f32>,
 }
 
 impl Replay {
@@ -65,6 +69,7 @@ impl Replay {
             rewards: Vec::new(),
             discounts: Vec::new(),
             returns: Vec::new(),
+            targets: Vec::new(),
         }
     }
 
@@ -84,7 +89,8 @@ impl Replay {
         self.humans * FEATURE_DIM
     }
 
-    pub fn push(&mut self, t: Transition<'_>) {
+    /// Stores `t` and returns its slot.
+    pub fn push(&mut self, t: Transition<'_>) -> usize {
         let row = self.row();
         debug_assert_eq!(t.state.len(), row);
         debug_assert_eq!(t.next_state.len(), row);
@@ -94,6 +100,7 @@ impl Replay {
             self.rewards.push(t.reward);
             self.discounts.push(t.discount);
             self.returns.push(t.mc_return);
+            self.targets.push(0.0);
             self.len += 1;
         } else {
             let i = self.next;
@@ -102,8 +109,26 @@ impl Replay {
             self.rewards[i] = t.reward;
             self.discounts[i] = t.discount;
             self.returns[i] = t.mc_return;
+            self.targets[i] = 0.0;
         }
+        let slot = self.next;
         self.next = (self.next + 1) % self.capacity;
+        slot
+    }
+
+    /// Next states, rewards and discounts of slots `range` (for recomputing targets).
+    pub fn target_inputs(&self, range: std::ops::Range<usize>) -> (&[f32], &[f32], &[f32]) {
+        let row = self.row();
+        (
+            &self.next_states[range.start * row..range.end * row],
+            &self.rewards[range.clone()],
+            &self.discounts[range],
+        )
+    }
+
+    /// Overwrites the cached targets of slots `start..start + y.len()`.
+    pub fn set_targets(&mut self, start: usize, y: &[f32]) {
+        self.targets[start..start + y.len()].copy_from_slice(y);
     }
 
     /// Copies the transitions `indices` into `out`.
@@ -114,6 +139,7 @@ impl Replay {
         out.rewards.clear();
         out.discounts.clear();
         out.returns.clear();
+        out.targets.clear();
         for i in indices {
             out.states
                 .extend_from_slice(&self.states[i * row..(i + 1) * row]);
@@ -122,6 +148,7 @@ impl Replay {
             out.rewards.push(self.rewards[i]);
             out.discounts.push(self.discounts[i]);
             out.returns.push(self.returns[i]);
+            out.targets.push(self.targets[i]);
         }
     }
 
@@ -164,6 +191,7 @@ impl Replay {
             && next < capacity
             && (len == capacity || next == len % capacity);
         fits.then_some(Self {
+            targets: vec![0.0; len],
             capacity,
             humans,
             len,

@@ -247,7 +247,9 @@ fn report(setup: &Setup) {
         let config = net.config().clone();
         let mut scratch = Scratch::default();
         let mut out = vec![0.0; ACTIONS];
-        let (t, tc) = median_secs(31, 20, || net.values_into(decision, &mut scratch, &mut out));
+        let (t, tc) = median_secs(21, 100, || {
+            net.values_into(decision, &mut scratch, &mut out)
+        });
         let flop = 2.0 * performed_forward_macs(&config, ACTIONS, HUMANS);
         let extra = if kind == NetKind::Sarl {
             format!(
@@ -266,7 +268,10 @@ fn report(setup: &Setup) {
             flop / t / 1e9,
             flop / tc / 1e9,
         );
-        let (t, tc) = median_secs(15, 5, || {
+        for _ in 0..50 {
+            setup.update(&mut trainer);
+        }
+        let (t, tc) = median_secs(15, 10, || {
             black_box(setup.update(&mut trainer));
         });
         // Target forward + forward + backward (two products per forward product).

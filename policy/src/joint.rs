@@ -130,8 +130,19 @@ mod tests {
         }];
         let f = featurize(&robot(), &humans, HumanOrder::AsGiven);
         let expected = [
-            8.0, 1.0, 0.0, 0.3, 0.5, 0.0, // robot: d_g, v_pref, θ_rel, r, v_x, v_y
-            2.0, -1.0, 0.0, 1.0, 0.3, 5f32.sqrt(), 0.6,
+            8.0,
+            1.0,
+            0.0,
+            0.3,
+            0.5,
+            0.0, // robot: d_g, v_pref, θ_rel, r, v_x, v_y
+            2.0,
+            -1.0,
+            0.0,
+            1.0,
+            0.3,
+            5f32.sqrt(),
+            0.6,
         ];
         assert_eq!(f.len(), 13);
         for (k, (a, b)) in f.iter().zip(expected).enumerate() {
@@ -143,15 +154,39 @@ mod tests {
     fn heading_relative_to_goal_is_wrapped() {
         let mut r = robot();
         r.heading_rad = -std::f64::consts::FRAC_PI_2 - 0.1; // facing away, a little left
-        let f = featurize(&r, &[HumanObs { position: Vec2::new(3.0, 3.0), velocity: Vec2::zeros(), radius_m: 0.3 }], HumanOrder::AsGiven);
-        assert!((f[2] as f64 - (std::f64::consts::PI - 0.1)).abs() < 1e-6, "{}", f[2]);
+        let f = featurize(
+            &r,
+            &[HumanObs {
+                position: Vec2::new(3.0, 3.0),
+                velocity: Vec2::zeros(),
+                radius_m: 0.3,
+            }],
+            HumanOrder::AsGiven,
+        );
+        assert!(
+            (f[2] as f64 - (std::f64::consts::PI - 0.1)).abs() < 1e-6,
+            "{}",
+            f[2]
+        );
     }
 
     #[test]
     fn farthest_first_puts_the_closest_human_last() {
-        let near = HumanObs { position: Vec2::new(0.0, -3.0), velocity: Vec2::zeros(), radius_m: 0.3 };
-        let far = HumanObs { position: Vec2::new(0.0, 3.0), velocity: Vec2::zeros(), radius_m: 0.3 };
-        let mid = HumanObs { position: Vec2::new(2.0, -4.0), velocity: Vec2::zeros(), radius_m: 0.3 };
+        let near = HumanObs {
+            position: Vec2::new(0.0, -3.0),
+            velocity: Vec2::zeros(),
+            radius_m: 0.3,
+        };
+        let far = HumanObs {
+            position: Vec2::new(0.0, 3.0),
+            velocity: Vec2::zeros(),
+            radius_m: 0.3,
+        };
+        let mid = HumanObs {
+            position: Vec2::new(2.0, -4.0),
+            velocity: Vec2::zeros(),
+            radius_m: 0.3,
+        };
         let f = featurize(&robot(), &[near, far, mid], HumanOrder::FarthestFirst);
         let dists: Vec<f32> = f.chunks(13).map(|r| r[11]).collect();
         assert_eq!(dists, vec![7.0, 2.0, 1.0]);

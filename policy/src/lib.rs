@@ -19,14 +19,14 @@ pub mod joint;
 mod kernels;
 pub mod lookahead;
 pub mod method;
-pub mod rollout;
 mod net;
 pub mod optim;
 #[cfg(test)]
 mod reference;
-pub mod train;
+pub mod rollout;
 #[cfg(test)]
 mod tests;
+pub mod train;
 
 pub use config::{LstmRlConfig, NetConfig, NetKind, ParamLayout, ParamSpec, SarlConfig};
 pub use error::PolicyError;

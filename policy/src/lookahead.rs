@@ -73,7 +73,10 @@ impl Lookahead {
 
     /// Lookahead values of every action from the last [`Lookahead::decide`].
     pub fn last_values(&self) -> impl Iterator<Item = f64> + '_ {
-        self.rewards.iter().zip(&self.values).map(|(r, v)| r + self.discount_last * *v as f64)
+        self.rewards
+            .iter()
+            .zip(&self.values)
+            .map(|(r, v)| r + self.discount_last * *v as f64)
     }
 
     /// Evaluates every action of `env`'s action set and returns the best.
@@ -89,12 +92,14 @@ impl Lookahead {
             HumanModel::Orca => env.next_humans(&mut self.next_humans),
             HumanModel::ConstantVelocity => {
                 self.next_humans.clear();
-                self.next_humans.extend(env.humans().iter().map(|h| HumanState {
-                    position: h.position + h.velocity * dt_s,
-                    ..*h
-                }));
+                self.next_humans
+                    .extend(env.humans().iter().map(|h| HumanState {
+                        position: h.position + h.velocity * dt_s,
+                        ..*h
+                    }));
                 self.velocities.clear();
-                self.velocities.extend(env.humans().iter().map(|h| h.velocity));
+                self.velocities
+                    .extend(env.humans().iter().map(|h| h.velocity));
             }
         }
         self.obs.clear();
@@ -106,7 +111,10 @@ impl Lookahead {
             let eval = match self.model {
                 HumanModel::Orca => env.preview(a).expect("index within the action set"),
                 HumanModel::ConstantVelocity => {
-                    let action = env.action_set().get(a).expect("index within the action set");
+                    let action = env
+                        .action_set()
+                        .get(a)
+                        .expect("index within the action set");
                     evaluate_step(
                         env.config(),
                         &robot,

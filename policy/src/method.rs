@@ -256,8 +256,18 @@ impl TrainConfig {
             }
         };
         unit("train.gamma", self.gamma, true, 1.0);
-        unit("train.imitation.learning_rate", self.imitation.learning_rate, true, 10.0);
-        unit("train.imitation.safety_space_m", self.imitation.safety_space_m, false, 10.0);
+        unit(
+            "train.imitation.learning_rate",
+            self.imitation.learning_rate,
+            true,
+            10.0,
+        );
+        unit(
+            "train.imitation.safety_space_m",
+            self.imitation.safety_space_m,
+            false,
+            10.0,
+        );
         unit("train.rl.learning_rate", self.rl.learning_rate, true, 10.0);
         unit("train.rl.epsilon_start", self.rl.epsilon_start, false, 1.0);
         unit("train.rl.epsilon_end", self.rl.epsilon_end, false, 1.0);
@@ -315,8 +325,22 @@ mod tests {
     fn defaults_are_the_papers_and_valid() {
         let c = TrainConfig::default();
         assert!(c.problems().is_empty());
-        assert_eq!((c.imitation.episodes, c.imitation.epochs, c.imitation.batch_size), (3000, 50, 100));
-        assert_eq!((c.rl.episodes, c.rl.batches_per_episode, c.rl.replay_capacity), (10_000, 100, 100_000));
+        assert_eq!(
+            (
+                c.imitation.episodes,
+                c.imitation.epochs,
+                c.imitation.batch_size
+            ),
+            (3000, 50, 100)
+        );
+        assert_eq!(
+            (
+                c.rl.episodes,
+                c.rl.batches_per_episode,
+                c.rl.replay_capacity
+            ),
+            (10_000, 100, 100_000)
+        );
         let mut bad = c.clone();
         bad.gamma = 1.5;
         bad.rl.learning_rate = f64::NAN;

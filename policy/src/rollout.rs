@@ -35,6 +35,10 @@ pub struct EpisodeData {
     pub states: Vec<JointState>,
     pub actions: Vec<u16>,
     pub rewards: Vec<RewardTerms>,
+    /// Closest boundary distance to any human during each step.
+    pub closest_m: Vec<f64>,
+    /// Per human, whether it stands still all episode.
+    pub standing: Vec<bool>,
     pub outcome: Outcome,
     /// ε the episode was run with.
     pub epsilon: f64,
@@ -77,8 +81,13 @@ pub fn episode_seed(run_seed: u64, stream: u64, index: u64) -> u64 {
 
 /// Resets `env` to `seed` and runs the episode to its end with `behaviour`. The ε draws come
 /// from a generator seeded by the episode seed, so (seed, weights, ε) replays bit for bit.
-pub fn rollout(env: &mut Env, seed: u64, behaviour: Behaviour<'_>) -> Result<EpisodeData, PolicyError> {
-    env.reset(seed).map_err(|e| PolicyError::Config(e.to_string()))?;
+pub fn rollout(
+    env: &mut Env,
+    seed: u64,
+    behaviour: Behaviour<'_>,
+) -> Result<EpisodeData, PolicyError> {
+    env.reset(seed)
+        .map_err(|e| PolicyError::Config(e.to_string()))?;
     let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x005E_ED0F_E951_1015);
     let mut states = Vec::with_capacity(env.config().max_steps() as usize + 1);
     let mut actions = Vec::with_capacity(env.config().max_steps() as usize);
@@ -134,6 +143,8 @@ pub fn rollout(env: &mut Env, seed: u64, behaviour: Behaviour<'_>) -> Result<Epi
         states,
         actions,
         rewards: episode.steps.iter().map(|s| s.eval.reward).collect(),
+        closest_m: episode.steps.iter().map(|s| s.eval.closest_m).collect(),
+        standing: env.humans().iter().map(|h| h.standing).collect(),
         outcome: episode.summary.outcome,
         epsilon,
         policy_version,
@@ -167,7 +178,14 @@ mod tests {
     fn recorded_episodes_are_consistent_and_replayable() {
         let setting: Setting = "env2-visible".parse().unwrap();
         let mut env = Env::new(SimConfig::default(), setting, 0).unwrap();
-        let demo = rollout(&mut env, 2000, Behaviour::Orca { safety_space_m: 0.15 }).unwrap();
+        let demo = rollout(
+            &mut env,
+            2000,
+            Behaviour::Orca {
+                safety_space_m: 0.15,
+            },
+        )
+        .unwrap();
         assert_eq!(demo.states.len(), demo.actions.len() + 1);
         assert_eq!(demo.rewards.len(), demo.actions.len());
         assert_eq!(demo.summary.steps as usize, demo.steps());

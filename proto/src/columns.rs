@@ -4,6 +4,7 @@
 //! bytes, 4 bytes per value, instead of an array of tagged floats (5 bytes per value and a
 //! per-element decode). Other languages read them with e.g. `numpy.frombuffer(b, "<f4")`.
 
+use std::borrow::Cow;
 use std::fmt;
 
 use serde::de::{self, Visitor};
@@ -16,7 +17,7 @@ pub(crate) mod f32_le {
     use super::*;
 
     pub(crate) fn serialize<S: Serializer>(values: &[f32], s: S) -> Result<S::Ok, S::Error> {
-        s.serialize_bytes(&f32_to_le_bytes(values))
+        s.serialize_bytes(&f32_le_bytes(values))
     }
 
     pub(crate) fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<Vec<f32>, D::Error> {
@@ -25,17 +26,29 @@ pub(crate) mod f32_le {
 }
 
 /// The little-endian bytes of `values` (the exact bytes that travel and that the weight
-/// checksum covers).
-pub fn f32_to_le_bytes(values: &[f32]) -> Vec<u8> {
-    let mut out = Vec::with_capacity(values.len() * 4);
-    for v in values {
-        out.extend_from_slice(&v.to_le_bytes());
+/// checksum covers). Borrowed without copying on little-endian machines.
+pub fn f32_le_bytes(values: &[f32]) -> Cow<'_, [u8]> {
+    #[cfg(target_endian = "little")]
+    {
+        // SAFETY: `f32` has no padding and every byte of it is initialised; `u8` has alignment
+        // 1 and no invalid values; the length in bytes is exactly `4 * values.len()` and the
+        // borrow keeps `values` alive and immutable for the returned slice's lifetime.
+        Cow::Borrowed(unsafe {
+            std::slice::from_raw_parts(values.as_ptr().cast::<u8>(), std::mem::size_of_val(values))
+        })
     }
-    out
+    #[cfg(not(target_endian = "little"))]
+    {
+        let mut out = Vec::with_capacity(values.len() * 4);
+        for v in values {
+            out.extend_from_slice(&v.to_le_bytes());
+        }
+        Cow::Owned(out)
+    }
 }
 
 fn f32_from_le_bytes(bytes: &[u8]) -> Option<Vec<f32>> {
-    if bytes.len() % 4 != 0 {
+    if !bytes.len().is_multiple_of(4) {
         return None;
     }
     Some(
@@ -75,10 +88,16 @@ impl<'de> Visitor<'de> for F32Visitor {
 
 /// Checks that every value is finite.
 pub(crate) fn check_finite(field: &'static str, values: &[f32]) -> Result<(), ValidationError> {
-    match values.iter().position(|v| !v.is_finite()) {
-        Some(index) => Err(ValidationError::NonFinite { field, index }),
-        None => Ok(()),
+    // Branch-free per chunk so the common (all finite) case vectorises; locate the culprit
+    // only when there is one.
+    let all_finite = values
+        .chunks(64)
+        .all(|c| c.iter().fold(true, |ok, v| ok & v.is_finite()));
+    if all_finite {
+        return Ok(());
     }
+    let index = values.iter().position(|v| !v.is_finite()).unwrap_or(0);
+    Err(ValidationError::NonFinite { field, index })
 }
 
 /// Checks that a scalar is finite.

@@ -2,7 +2,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use crate::columns::{check_finite, check_len, check_max, check_name, f32_le, f32_to_le_bytes};
+use crate::columns::{check_finite, check_len, check_max, check_name, f32_le, f32_le_bytes};
 use crate::error::ValidationError;
 use crate::header::{Body, MessageKind};
 
@@ -126,7 +126,7 @@ impl Weights {
 
 /// CRC-32 of the little-endian bytes of `params`.
 pub fn params_crc32(params: &[f32]) -> u32 {
-    crc32fast::hash(&f32_to_le_bytes(params))
+    crc32fast::hash(&f32_le_bytes(params))
 }
 
 impl Body for Weights {

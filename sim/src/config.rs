@@ -113,6 +113,102 @@ pub enum Semantics {
     /// SPEC §2: exact swept distance with the humans' new velocities; timeout after the step.
     #[default]
     Spec,
+    /// CrowdNav's `CrowdSim.step` exactly, a compatibility mode for reproducing its numbers
+    /// (`crowdnav-facts.md` §1.6, §7):
+    /// - collision and closest distance on the *relative segment* built from each human's
+    ///   previous velocity (the one stored from the last step, not this step's ORCA velocity) and
+    ///   the robot's commanded velocity, with CrowdNav's point-to-segment arithmetic; the scan
+    ///   stops at the first colliding human;
+    /// - timeout first, when the time at the *start* of the step is ≥ time_limit − 1 s (with
+    ///   the defaults the 97th step, ending at 24.25 s), then collision, then reach-goal, then
+    ///   danger; R_c is 0 on the timeout step;
+    /// - danger only on non-terminal steps.
+    ///
+    /// The humans still move with this step's ORCA velocities and time advances by dt.
+    #[serde(rename = "crowdnav")]
+    CrowdNav,
+}
+
+impl Semantics {
+    pub fn name(self) -> &'static str {
+        match self {
+            Semantics::Spec => "spec",
+            Semantics::CrowdNav => "crowdnav",
+        }
+    }
+}
+
+impl fmt::Display for Semantics {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+/// An unknown semantics or kinematics name.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("unknown {what} `{name}`; expected one of {expected}")]
+pub struct UnknownName {
+    pub what: &'static str,
+    pub name: String,
+    pub expected: &'static str,
+}
+
+impl FromStr for Semantics {
+    type Err = UnknownName;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        match s {
+            "spec" => Ok(Semantics::Spec),
+            "crowdnav" => Ok(Semantics::CrowdNav),
+            _ => Err(UnknownName {
+                what: "semantics",
+                name: s.to_string(),
+                expected: "spec, crowdnav",
+            }),
+        }
+    }
+}
+
+/// How the robot moves.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Kinematics {
+    /// SPEC §2: an action (v, Δθ) turns the heading by Δθ, then the robot drives straight at v.
+    #[default]
+    Unicycle,
+    /// CrowdNav's holonomic robot: it moves at any world-frame velocity; its heading never
+    /// changes. The action set is stop plus `holonomic_headings` world-frame directions
+    /// k·2π/headings × the exponential speeds (CrowdNav: 16 × 5 = 81 actions).
+    Holonomic,
+}
+
+impl Kinematics {
+    pub fn name(self) -> &'static str {
+        match self {
+            Kinematics::Unicycle => "unicycle",
+            Kinematics::Holonomic => "holonomic",
+        }
+    }
+}
+
+impl fmt::Display for Kinematics {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+impl FromStr for Kinematics {
+    type Err = UnknownName;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        match s {
+            "unicycle" => Ok(Kinematics::Unicycle),
+            "holonomic" => Ok(Kinematics::Holonomic),
+            _ => Err(UnknownName {
+                what: "kinematics",
+                name: s.to_string(),
+                expected: "unicycle, holonomic",
+            }),
+        }
+    }
 }
 
 /// The robot (SPEC §2).
@@ -124,6 +220,11 @@ pub struct RobotConfig {
     pub start_m: [f64; 2],
     pub goal_m: [f64; 2],
     pub heading_rad: f64,
+    /// Unicycle (SPEC, the default) or holonomic (CrowdNav's baselines).
+    pub kinematics: Kinematics,
+    /// World-frame directions of the holonomic action set, evenly spaced over [0, 2π) starting
+    /// at 0 (CrowdNav: 16). Unused by the unicycle robot, whose rotations are `actions.*`.
+    pub holonomic_headings: usize,
 }
 
 impl Default for RobotConfig {
@@ -134,6 +235,8 @@ impl Default for RobotConfig {
             start_m: [0.0, -4.0],
             goal_m: [0.0, 4.0],
             heading_rad: std::f64::consts::FRAC_PI_2,
+            kinematics: Kinematics::Unicycle,
+            holonomic_headings: 16,
         }
     }
 }
@@ -366,6 +469,9 @@ impl SimConfig {
         ] {
             c.finite(name, v);
         }
+        if r.kinematics == Kinematics::Holonomic {
+            c.at_least("robot.holonomic_headings", r.holonomic_headings, 1);
+        }
         let h = &self.humans;
         c.positive("humans.radius_m", h.radius_m);
         c.positive("humans.v_pref_mps", h.v_pref_mps);
@@ -473,6 +579,29 @@ mod tests {
             assert_eq!(Setting::ALL[s.index()], s);
         }
         assert!("env4-visible".parse::<Setting>().is_err());
+    }
+
+    #[test]
+    fn semantics_and_kinematics_names() {
+        for s in [Semantics::Spec, Semantics::CrowdNav] {
+            assert_eq!(s.name().parse::<Semantics>().unwrap(), s);
+        }
+        for k in [Kinematics::Unicycle, Kinematics::Holonomic] {
+            assert_eq!(k.name().parse::<Kinematics>().unwrap(), k);
+        }
+        let err = "crowd-nav".parse::<Semantics>().unwrap_err().to_string();
+        assert!(err.contains("expected one of spec, crowdnav"), "{err}");
+        assert!("omni".parse::<Kinematics>().is_err());
+        let mut c = SimConfig::default();
+        assert_eq!(c.semantics, Semantics::Spec);
+        assert_eq!(c.robot.kinematics, Kinematics::Unicycle);
+        c.robot.kinematics = Kinematics::Holonomic;
+        c.robot.holonomic_headings = 0;
+        let err = c.validate().unwrap_err().to_string();
+        assert!(
+            err.contains("robot.holonomic_headings must be at least 1"),
+            "{err}"
+        );
     }
 
     #[test]

@@ -1,9 +1,9 @@
 //! The environment: state, the humans' ORCA step, the robot's step and one-step previews.
 
-use crate::config::{ConfigError, Setting, SimConfig};
+use crate::config::{ConfigError, Kinematics, Setting, SimConfig};
 use crate::geom::{Vec2, Vec2f};
 use crate::orca::{Orca, OrcaAgent, OrcaParams};
-use crate::reward::{evaluate_step, Outcome, StepEval};
+use crate::reward::{evaluate_step, evaluate_velocity_step, Outcome, StepEval};
 use crate::robot::{ActionSet, RobotState};
 use crate::scenario::{HumanState, Scenario, ScenarioError};
 
@@ -18,12 +18,28 @@ pub enum EnvError {
     UnknownAction { index: usize, len: usize },
     #[error("the episode is over ({0}); reset before stepping again")]
     EpisodeOver(&'static str),
+    #[error("a direct velocity command needs robot.kinematics = \"holonomic\"; the robot is {0}")]
+    NotHolonomic(Kinematics),
+}
+
+/// What the robot does for one step.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum RobotCommand {
+    /// An index into the env's [`ActionSet`].
+    Action(usize),
+    /// A world-frame velocity executed directly (holonomic robot only), e.g. the velocity ORCA
+    /// chose, as CrowdNav's holonomic ORCA robot does.
+    Velocity(Vec2),
 }
 
 /// What one executed step produced.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct StepInfo {
+    /// The action executed; for a [`RobotCommand::Velocity`] step, the action of the set whose
+    /// velocity is closest to the executed one.
     pub action_index: usize,
+    /// Whether the robot executed a direct velocity ([`RobotCommand::Velocity`]).
+    pub direct_velocity: bool,
     pub eval: StepEval,
     /// Simulated time at the end of the step.
     pub time_s: f64,
@@ -91,7 +107,7 @@ impl Env {
     }
 
     fn from_parts(cfg: SimConfig, setting: Setting, seed: u64, scenario: Scenario) -> Self {
-        let actions = ActionSet::new(&cfg.actions, cfg.robot.v_pref_mps);
+        let actions = ActionSet::for_config(&cfg);
         let n = scenario.humans.len();
         Self {
             orca: Orca::new(orca_params(&cfg)),
@@ -119,6 +135,17 @@ impl Env {
         self.outcome = Outcome::Running;
         self.human_velocity_valid = false;
         Ok(())
+    }
+
+    /// Starts a new episode from an explicit scenario (e.g. a scene file's case), reusing every
+    /// buffer; `seed` only names the episode.
+    pub fn reset_to_scenario(&mut self, seed: u64, scenario: Scenario) {
+        self.robot = scenario.robot;
+        self.humans = scenario.humans;
+        self.seed = seed;
+        self.steps = 0;
+        self.outcome = Outcome::Running;
+        self.human_velocity_valid = false;
     }
 
     pub fn config(&self) -> &SimConfig {
@@ -237,12 +264,46 @@ impl Env {
         ))
     }
 
-    /// Executes one step: SPEC §2's order, then every agent moves and time advances.
+    /// What a direct-velocity step would give (holonomic robot only), without changing the
+    /// episode.
+    pub fn preview_velocity(&mut self, velocity: Vec2) -> Result<StepEval, EnvError> {
+        if self.cfg.robot.kinematics != Kinematics::Holonomic {
+            return Err(EnvError::NotHolonomic(self.cfg.robot.kinematics));
+        }
+        self.human_step_velocities();
+        Ok(evaluate_velocity_step(
+            &self.cfg,
+            &self.robot,
+            velocity,
+            &self.humans,
+            &self.human_velocity,
+            self.steps + 1,
+        ))
+    }
+
+    /// Executes one step: SPEC §2's order (or CrowdNav's, by `cfg.semantics`), then every agent
+    /// moves and time advances.
     pub fn step(&mut self, action_index: usize) -> Result<StepInfo, EnvError> {
+        self.step_command(RobotCommand::Action(action_index))
+    }
+
+    /// Executes one step with a world-frame velocity (holonomic robot only).
+    pub fn step_velocity(&mut self, velocity: Vec2) -> Result<StepInfo, EnvError> {
+        self.step_command(RobotCommand::Velocity(velocity))
+    }
+
+    /// Executes one step of `command`.
+    pub fn step_command(&mut self, command: RobotCommand) -> Result<StepInfo, EnvError> {
         if self.outcome.is_terminal() {
             return Err(EnvError::EpisodeOver(self.outcome.name()));
         }
-        let eval = self.preview(action_index)?;
+        let (action_index, direct_velocity, eval) = match command {
+            RobotCommand::Action(i) => (i, false, self.preview(i)?),
+            RobotCommand::Velocity(v) => {
+                let eval = self.preview_velocity(v)?;
+                (self.actions.nearest(self.robot.heading_rad, v), true, eval)
+            }
+        };
         let dt = self.cfg.dt_s;
         self.robot = eval.robot_next;
         for (h, v) in self.humans.iter_mut().zip(&self.human_velocity) {
@@ -254,6 +315,7 @@ impl Env {
         self.human_velocity_valid = false;
         Ok(StepInfo {
             action_index,
+            direct_velocity,
             eval,
             time_s: self.time_s(),
         })
@@ -268,9 +330,21 @@ impl Env {
         Vec2::new(v.x as f64, v.y as f64)
     }
 
-    /// The ORCA robot policy: ORCA's velocity mapped to the nearest action.
+    /// The ORCA robot policy as an action index: ORCA's velocity mapped to the nearest action
+    /// of the set (the unicycle set, or the holonomic set for a holonomic robot).
     pub fn orca_robot_action(&mut self, safety_space_m: f64) -> usize {
         let v = self.orca_robot_velocity(safety_space_m);
         self.actions.nearest(self.robot.heading_rad, v)
+    }
+
+    /// The ORCA robot: a holonomic robot executes ORCA's velocity directly (CrowdNav's ORCA
+    /// baseline); a unicycle robot takes the nearest action ([`Env::orca_robot_action`]).
+    pub fn orca_robot_command(&mut self, safety_space_m: f64) -> RobotCommand {
+        match self.cfg.robot.kinematics {
+            Kinematics::Holonomic => {
+                RobotCommand::Velocity(self.orca_robot_velocity(safety_space_m))
+            }
+            Kinematics::Unicycle => RobotCommand::Action(self.orca_robot_action(safety_space_m)),
+        }
     }
 }

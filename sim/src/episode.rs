@@ -1,6 +1,6 @@
 //! Running whole episodes and summarising them (paper §IV.B metrics).
 
-use crate::env::{Env, EnvError, StepInfo};
+use crate::env::{Env, EnvError, RobotCommand, StepInfo};
 use crate::geom::{wrap_angle, Vec2};
 use crate::reward::Outcome;
 use crate::robot::RobotState;
@@ -37,6 +37,9 @@ pub struct EpisodeSummary {
     pub return_sum: f64,
     /// Smallest closest distance over the episode.
     pub min_closest_m: f64,
+    /// Smallest closest distance over the danger steps (∞ without one): CrowdNav's
+    /// `min_danger_dist` of one episode.
+    pub min_danger_m: f64,
 }
 
 impl EpisodeSummary {
@@ -67,6 +70,19 @@ pub fn run_episode<P>(
 where
     P: FnMut(&mut Env) -> usize,
 {
+    run_episode_with(env, |env| RobotCommand::Action(policy(env)), record_frames)
+}
+
+/// Runs the episode in `env` to its end, asking `policy` for a [`RobotCommand`] at every step
+/// (e.g. [`Env::orca_robot_command`], which drives a holonomic robot at ORCA's velocity).
+pub fn run_episode_with<P>(
+    env: &mut Env,
+    mut policy: P,
+    record_frames: bool,
+) -> Result<Episode, EnvError>
+where
+    P: FnMut(&mut Env) -> RobotCommand,
+{
     let mut steps = Vec::with_capacity(env.config().max_steps() as usize);
     let mut frames = Vec::new();
     if record_frames {
@@ -81,11 +97,12 @@ where
         total_abs_rotation_rad: 0.0,
         return_sum: 0.0,
         min_closest_m: f64::INFINITY,
+        min_danger_m: f64::INFINITY,
     };
     while !env.is_done() {
         let before = *env.robot();
-        let action = policy(env);
-        let info = env.step(action)?;
+        let command = policy(env);
+        let info = env.step_command(command)?;
         let after = env.robot();
         summary.path_length_m += (after.position - before.position).norm();
         summary.total_abs_rotation_rad += wrap_angle(after.heading_rad - before.heading_rad).abs();
@@ -93,6 +110,7 @@ where
         summary.min_closest_m = summary.min_closest_m.min(info.eval.closest_m);
         if info.eval.danger {
             summary.danger_steps += 1;
+            summary.min_danger_m = summary.min_danger_m.min(info.eval.closest_m);
         }
         steps.push(info);
         if record_frames {
@@ -122,6 +140,8 @@ pub struct Aggregate {
     pub success_path_m: f64,
     pub danger_steps: u64,
     pub steps: u64,
+    /// Steps of the episodes that timed out (included in `steps`).
+    pub timeout_steps: u64,
     pub abs_rotation_rad: f64,
     pub return_sum: f64,
 }
@@ -136,7 +156,10 @@ impl Aggregate {
                 self.success_path_m += s.path_length_m;
             }
             Outcome::Collision => self.collisions += 1,
-            Outcome::Timeout => self.timeouts += 1,
+            Outcome::Timeout => {
+                self.timeouts += 1;
+                self.timeout_steps += s.steps as u64;
+            }
             Outcome::Running => {}
         }
         self.danger_steps += s.danger_steps as u64;
@@ -155,6 +178,7 @@ impl Aggregate {
         self.success_path_m += o.success_path_m;
         self.danger_steps += o.danger_steps;
         self.steps += o.steps;
+        self.timeout_steps += o.timeout_steps;
         self.abs_rotation_rad += o.abs_rotation_rad;
         self.return_sum += o.return_sum;
     }
@@ -189,6 +213,20 @@ impl Aggregate {
             0.0
         } else {
             self.danger_steps as f64 / self.steps as f64
+        }
+    }
+    /// CrowdNav's "frequency of being in danger" (`crowdnav-facts.md` §7): danger steps over
+    /// (steps of the episodes that did not time out + `time_limit_steps` per timeout). CrowdNav
+    /// books a timeout as the whole time limit (25 s = 100 steps) although it simulates only
+    /// 97 steps. Under SPEC semantics a timeout takes exactly the time limit, so with
+    /// `time_limit_steps = cfg.max_steps()` this equals [`Aggregate::discomfort`].
+    pub fn danger_frequency(&self, time_limit_steps: u32) -> f64 {
+        let denominator =
+            self.steps - self.timeout_steps + self.timeouts as u64 * time_limit_steps as u64;
+        if denominator == 0 {
+            0.0
+        } else {
+            self.danger_steps as f64 / denominator as f64
         }
     }
     /// Mean |Δθ| per step over all steps (smoothness).

@@ -2,10 +2,14 @@
 //! tensors, no async.
 //!
 //! - [`orca`]: ORCA with RVO2's semantics (float32) and per-agent avoidance responsibility.
-//! - [`robot`]: unicycle kinematics and the 51-action set.
+//! - [`robot`]: unicycle kinematics and the 51-action set; CrowdNav's holonomic robot and its
+//!   81-action set (`robot.kinematics`).
 //! - [`scenario`]: the six settings' initial states from (setting, seed).
+//! - [`scenes`]: explicit scenes parsed from a scene file's text (CrowdNav's test scenes or
+//!   fsrl's format).
 //! - [`env`]: the step (humans' ORCA step, robot action, swept closest distance, outcome) and
-//!   side-effect-free previews for one-step lookahead.
+//!   side-effect-free previews for one-step lookahead; SPEC's step semantics by default,
+//!   CrowdNav's exactly with `semantics = "crowdnav"` ([`Semantics::CrowdNav`]).
 //! - [`reward`]: the FSRL reward term by term, as a pure function shared by env and policies.
 //! - [`episode`]: whole episodes and the paper's metrics.
 //!
@@ -25,11 +29,13 @@ pub mod orca;
 pub mod reward;
 pub mod robot;
 pub mod scenario;
+pub mod scenes;
 
-pub use config::{ConfigError, EnvKind, Semantics, Setting, SimConfig};
-pub use env::{Env, EnvError, StepInfo};
-pub use episode::{run_episode, Aggregate, Episode, EpisodeSummary, Frame};
+pub use config::{ConfigError, EnvKind, Kinematics, Semantics, Setting, SimConfig};
+pub use env::{Env, EnvError, RobotCommand, StepInfo};
+pub use episode::{run_episode, run_episode_with, Aggregate, Episode, EpisodeSummary, Frame};
 pub use geom::Vec2;
-pub use reward::{evaluate_step, Outcome, RewardTerms, StepEval};
+pub use reward::{evaluate_step, evaluate_velocity_step, Outcome, RewardTerms, StepEval};
 pub use robot::{Action, ActionSet, RobotState};
 pub use scenario::{HumanState, Scenario, ScenarioError};
+pub use scenes::{parse_scenes, SceneCase, SceneError, SceneFile, SceneFormat};

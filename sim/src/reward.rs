@@ -3,7 +3,7 @@
 //! one-step lookahead both call [`evaluate_step`], so the reward a policy plans with is the very
 //! reward the simulator pays.
 
-use crate::config::SimConfig;
+use crate::config::{Semantics, SimConfig};
 use crate::geom::{closest_approach, Vec2};
 use crate::robot::{Action, RobotState};
 use crate::scenario::HumanState;
@@ -63,11 +63,12 @@ pub struct StepEval {
 
 /// Evaluates the step that takes the robot from `robot` with `action` while every human `i`
 /// moves at `human_velocity[i]` (its new velocity for this step), ending as step number
-/// `steps_after` of the episode.
+/// `steps_after` of the episode. The robot moves by `cfg.robot.kinematics`.
 ///
-/// Order (SPEC §2): collision if the swept closest distance is negative; else reach-goal if the
-/// robot's end position is within its radius of the goal; else timeout once `steps_after`
-/// reaches the step limit; else running.
+/// Order under [`Semantics::Spec`] (SPEC §2): collision if the swept closest distance is
+/// negative; else reach-goal if the robot's end position is within its radius of the goal; else
+/// timeout once `steps_after` reaches the step limit; else running. Under
+/// [`Semantics::CrowdNav`] see [`crowdnav_outcome`].
 pub fn evaluate_step(
     cfg: &SimConfig,
     robot: &RobotState,
@@ -76,38 +77,174 @@ pub fn evaluate_step(
     human_velocity: &[Vec2],
     steps_after: u32,
 ) -> StepEval {
-    debug_assert_eq!(humans.len(), human_velocity.len());
-    let dt = cfg.dt_s;
-    let robot_velocity = robot.commanded_velocity(action);
-    let robot_next = robot.propagate(action, dt);
+    let kinematics = cfg.robot.kinematics;
+    let robot_velocity = robot.velocity_for(kinematics, action);
+    let robot_next = robot.propagate_with(kinematics, action, cfg.dt_s);
+    evaluate_motion(
+        cfg,
+        robot,
+        robot_velocity,
+        robot_next,
+        humans,
+        human_velocity,
+        steps_after,
+    )
+}
 
+/// [`evaluate_step`] for a holonomic robot that moves at the world-frame `velocity` directly
+/// (CrowdNav's ORCA robot executing ORCA's velocity), whatever `cfg.robot.kinematics` says.
+pub fn evaluate_velocity_step(
+    cfg: &SimConfig,
+    robot: &RobotState,
+    velocity: Vec2,
+    humans: &[HumanState],
+    human_velocity: &[Vec2],
+    steps_after: u32,
+) -> StepEval {
+    let robot_next = robot.move_with_velocity(velocity, cfg.dt_s);
+    evaluate_motion(
+        cfg,
+        robot,
+        velocity,
+        robot_next,
+        humans,
+        human_velocity,
+        steps_after,
+    )
+}
+
+/// CrowdNav's `point_to_segment_dist(x1, y1, x2, y2, 0, 0)`: the distance from the origin to
+/// the segment from `a` to `b`, with its arithmetic in its order.
+pub fn crowdnav_origin_to_segment(a: Vec2, b: Vec2) -> f64 {
+    let px = b.x - a.x;
+    let py = b.y - a.y;
+    if px == 0.0 && py == 0.0 {
+        return norm2(0.0 - a.x, 0.0 - a.y);
+    }
+    let u = ((0.0 - a.x) * px + (0.0 - a.y) * py) / (px * px + py * py);
+    // CrowdNav clamps with `if u > 1 ... elif u < 0`; the same for every u, NaN included.
+    let u = u.clamp(0.0, 1.0);
+    let x = a.x + u * px;
+    let y = a.y + u * py;
+    norm2(x, y)
+}
+
+/// `sqrt(x² + y²)` as numpy's `norm` of a 2-vector computes it (no `hypot` scaling).
+#[inline]
+fn norm2(x: f64, y: f64) -> f64 {
+    (x * x + y * y).sqrt()
+}
+
+/// CrowdNav's collision scan (`crowdnav-facts.md` §1.6 step 2): for each human in order, the
+/// distance from the origin to the relative segment from q = p_h − p_r to q + (v_h − v_r)·dt,
+/// where v_h is the human's *current* velocity (the one it took last step) and v_r the robot's
+/// commanded velocity, minus both radii. Returns (collision, closest): the scan stops at the
+/// first negative distance, which is then the closest; otherwise the minimum (∞ without humans).
+pub fn crowdnav_closest(
+    robot: &RobotState,
+    robot_velocity: Vec2,
+    humans: &[HumanState],
+    dt_s: f64,
+) -> (bool, f64) {
     let mut closest_m = f64::INFINITY;
-    for (h, v) in humans.iter().zip(human_velocity) {
-        let d = closest_approach(h.position - robot.position, v - robot_velocity, dt)
+    for h in humans {
+        let px = h.position.x - robot.position.x;
+        let py = h.position.y - robot.position.y;
+        let vx = h.velocity.x - robot_velocity.x;
+        let vy = h.velocity.y - robot_velocity.y;
+        let ex = px + vx * dt_s;
+        let ey = py + vy * dt_s;
+        let d = crowdnav_origin_to_segment(Vec2::new(px, py), Vec2::new(ex, ey))
             - h.radius_m
             - robot.radius_m;
-        closest_m = closest_m.min(d);
+        if d < 0.0 {
+            return (true, d);
+        }
+        if d < closest_m {
+            closest_m = d;
+        }
     }
+    (false, closest_m)
+}
 
-    let w = &cfg.reward;
-    let outcome = if closest_m < 0.0 {
-        Outcome::Collision
-    } else if (robot_next.position - robot.goal).norm() < robot.radius_m {
-        Outcome::ReachGoal
-    } else if steps_after >= cfg.max_steps() {
+/// CrowdNav's outcome of a step (`CrowdSim.step`, `crowdnav-facts.md` §1.6 step 5), first match
+/// wins: timeout when the time at the start of the step, (steps_after − 1)·dt, is
+/// ≥ time_limit − 1 s; collision; reach-goal; running.
+pub fn crowdnav_outcome(
+    cfg: &SimConfig,
+    collision: bool,
+    reaching_goal: bool,
+    steps_after: u32,
+) -> Outcome {
+    let time_at_start_s = steps_after.saturating_sub(1) as f64 * cfg.dt_s;
+    if time_at_start_s >= cfg.time_limit_s - 1.0 {
         Outcome::Timeout
+    } else if collision {
+        Outcome::Collision
+    } else if reaching_goal {
+        Outcome::ReachGoal
     } else {
         Outcome::Running
+    }
+}
+
+fn evaluate_motion(
+    cfg: &SimConfig,
+    robot: &RobotState,
+    robot_velocity: Vec2,
+    robot_next: RobotState,
+    humans: &[HumanState],
+    human_velocity: &[Vec2],
+    steps_after: u32,
+) -> StepEval {
+    debug_assert_eq!(humans.len(), human_velocity.len());
+    let dt = cfg.dt_s;
+    let w = &cfg.reward;
+    let reaching_goal = (robot_next.position - robot.goal).norm() < robot.radius_m;
+
+    let (outcome, closest_m) = match cfg.semantics {
+        Semantics::Spec => {
+            let mut closest_m = f64::INFINITY;
+            for (h, v) in humans.iter().zip(human_velocity) {
+                let d = closest_approach(h.position - robot.position, v - robot_velocity, dt)
+                    - h.radius_m
+                    - robot.radius_m;
+                closest_m = closest_m.min(d);
+            }
+            let outcome = if closest_m < 0.0 {
+                Outcome::Collision
+            } else if reaching_goal {
+                Outcome::ReachGoal
+            } else if steps_after >= cfg.max_steps() {
+                Outcome::Timeout
+            } else {
+                Outcome::Running
+            };
+            (outcome, closest_m)
+        }
+        Semantics::CrowdNav => {
+            let (collision, closest_m) = crowdnav_closest(robot, robot_velocity, humans, dt);
+            (
+                crowdnav_outcome(cfg, collision, reaching_goal, steps_after),
+                closest_m,
+            )
+        }
     };
 
-    let collision_goal = match outcome {
-        Outcome::Collision => w.collision_penalty,
-        Outcome::ReachGoal => w.success_reward,
+    let collision_goal = match (cfg.semantics, outcome) {
+        (Semantics::CrowdNav, Outcome::Timeout) => 0.0,
+        (_, Outcome::Collision) => w.collision_penalty,
+        (_, Outcome::ReachGoal) => w.success_reward,
         _ if closest_m < w.comfort_dist_m => {
             w.discomfort_slope_per_m * (closest_m - w.comfort_dist_m)
         }
         _ => 0.0,
     };
+    let danger = closest_m < w.comfort_dist_m
+        && match cfg.semantics {
+            Semantics::Spec => !matches!(outcome, Outcome::Collision | Outcome::ReachGoal),
+            Semantics::CrowdNav => outcome == Outcome::Running,
+        };
     let standing = standing_penalty(cfg, robot, robot_velocity, humans);
     let dynamic = dynamic_penalty(cfg, robot, robot_velocity, humans);
     let time = match outcome {
@@ -125,8 +262,7 @@ pub fn evaluate_step(
     StepEval {
         outcome,
         closest_m,
-        danger: closest_m < w.comfort_dist_m
-            && !matches!(outcome, Outcome::Collision | Outcome::ReachGoal),
+        danger,
         reward: RewardTerms {
             collision_goal,
             standing,

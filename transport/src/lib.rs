@@ -188,12 +188,12 @@ impl Transport {
         let backend = match self.iox_for(topic) {
             Some(node) => {
                 let key = (!topic.is_wildcard()).then(|| topic.key_expr());
-                SubBackend::Iox(node.subscriber(
+                SubBackend::Iox(Box::new(node.subscriber(
                     topic.service_name(),
                     key,
                     topic.delivery(),
                     topic.fanout(),
-                )?)
+                )?))
             }
             None => SubBackend::Zenoh(zenoh_impl::declare_subscriber(
                 &self.inner.session,
@@ -250,12 +250,12 @@ impl Transport {
         let rx = Receiver::new(self, topic.key_expr());
         let slot = Arc::new(Slot::default());
         let backend = match self.iox_for(topic) {
-            Some(node) => LatestSubBackend::Iox(node.subscriber(
+            Some(node) => LatestSubBackend::Iox(Box::new(node.subscriber(
                 topic.service_name(),
                 Some(topic.key_expr()),
                 topic.delivery(),
                 topic.fanout(),
-            )?),
+            )?)),
             None => {
                 let (live_rx, live_slot) = (rx.clone(), Arc::clone(&slot));
                 let (init_rx, init_slot) = (rx.clone(), Arc::clone(&slot));
@@ -501,7 +501,7 @@ impl Receiver {
 
 enum SubBackend {
     Zenoh(zenoh_impl::SampleQueue),
-    Iox(IoxSubscriber),
+    Iox(Box<IoxSubscriber>),
 }
 
 /// Subscriber of a reliable or best-effort topic; see [`Transport::subscriber`].
@@ -553,6 +553,27 @@ impl<M: Body> Subscriber<M> {
                 }
                 Ok(None)
             }
+        }
+    }
+
+    /// Hands the next message's raw bytes to `f` without decoding (zero-copy from shared
+    /// memory with iceoryx2). For benchmarks and bridges only.
+    #[doc(hidden)]
+    pub fn recv_bytes_timeout<R>(
+        &self,
+        timeout: Duration,
+        mut f: impl FnMut(&[u8]) -> R,
+    ) -> Result<Option<R>, TransportError> {
+        let deadline = Instant::now() + timeout;
+        match &self.backend {
+            SubBackend::Zenoh(q) => {
+                let remaining = deadline.saturating_duration_since(Instant::now());
+                let sample = q
+                    .recv_timeout(remaining)
+                    .map_err(error::zenoh_err("receive"))?;
+                Ok(sample.map(|s| zenoh_impl::with_payload(&s, |b, _| f(b))))
+            }
+            SubBackend::Iox(s) => s.recv_until(deadline, |b, _| Some(f(b))),
         }
     }
 
@@ -667,7 +688,7 @@ enum LatestSubBackend {
     Zenoh {
         _subscriber: zenoh_impl::LatestSubscriber,
     },
-    Iox(IoxSubscriber),
+    Iox(Box<IoxSubscriber>),
 }
 
 /// Subscriber of a latest-value topic (weights, control). Keeps only the newest value; a

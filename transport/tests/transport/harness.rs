@@ -52,10 +52,7 @@ impl Net {
         };
         c.iceoryx2.prefix = Some(self.prefix.clone());
         c.iceoryx2.max_processes = 8;
-        c.zenoh = ZenohConfig::peer(
-            vec!["tcp/127.0.0.1:0".into()],
-            vec![self.endpoint.clone()],
-        );
+        c.zenoh = ZenohConfig::peer(vec!["tcp/127.0.0.1:0".into()], vec![self.endpoint.clone()]);
         c
     }
 

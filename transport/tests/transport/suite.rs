@@ -51,13 +51,18 @@ fn transitions_many_to_one(b: Backend) {
         for p in &pubs {
             s.spawn(move || {
                 for e in 0..N {
-                    let seq = p.publish(7, &fixtures::episode(45, 10, e)).expect("publish");
+                    let seq = p
+                        .publish(7, &fixtures::episode(45, 10, e))
+                        .expect("publish");
                     assert_eq!(seq, e);
                 }
             });
         }
         for _ in 0..3 * N {
-            let m = sub.recv_timeout(WAIT).expect("recv").expect("message in time");
+            let m = sub
+                .recv_timeout(WAIT)
+                .expect("recv")
+                .expect("message in time");
             let a = m.header.sender.index as usize;
             assert_eq!(m.header.sender, SenderId::actor(a as u32));
             assert_eq!(m.header.policy_version, 7);
@@ -117,12 +122,18 @@ fn latest_value_for_late_joiner(b: Backend) {
     let ws = actor
         .latest_subscriber(&keys::weights(&net.run))
         .expect("weights subscriber");
-    let current = ws.next(WAIT).expect("next").expect("current weights at once");
+    let current = ws
+        .next(WAIT)
+        .expect("next")
+        .expect("current weights at once");
     let waited = t0.elapsed();
     assert_eq!(current.body.version, 2);
     assert_eq!(current.header.policy_version, 2);
     assert_eq!(current.body, fixtures::sarl_weights(2));
-    assert!(waited < Duration::from_secs(2), "late joiner waited {waited:?}");
+    assert!(
+        waited < Duration::from_secs(2),
+        "late joiner waited {waited:?}"
+    );
     assert_eq!(
         ws.latest().expect("latest").map(|m| m.body.version),
         Some(2)
@@ -297,7 +308,10 @@ fn bad_input_is_counted_and_skipped(b: Backend) {
     // then a valid one, which must arrive
     p.publish(1, &valid).expect("publish");
 
-    let m = sub.recv_timeout(WAIT).expect("recv").expect("valid message");
+    let m = sub
+        .recv_timeout(WAIT)
+        .expect("recv")
+        .expect("valid message");
     assert_eq!(m.body, valid);
     assert_eq!(sub.rejected_count(), 5);
     assert_eq!(learner.rejected_count(), 5);
@@ -330,18 +344,17 @@ fn liveliness_join_and_leave(b: Backend) {
     let evaluator = net.open(SenderId::evaluator(0));
     let eval_token = evaluator.declare_alive().expect("token");
     expect_event(&watcher, AliveEvent::Joined(evaluator.member()));
-    let members = learner.alive_members(Duration::from_secs(2)).expect("snapshot");
+    let members = learner
+        .alive_members(Duration::from_secs(2))
+        .expect("snapshot");
     for m in [learner.member(), actor.member(), evaluator.member()] {
         assert!(members.contains(&m), "{m} missing from {members:?}");
     }
-    assert_eq!(
-        watcher.members().expect("members"),
-        {
-            let mut v = vec![learner.member(), actor.member(), evaluator.member()];
-            v.sort();
-            v
-        }
-    );
+    assert_eq!(watcher.members().expect("members"), {
+        let mut v = vec![learner.member(), actor.member(), evaluator.member()];
+        v.sort();
+        v
+    });
     drop(actor_token);
     expect_event(&watcher, AliveEvent::Left(actor.member()));
     // Closing the whole transport (process exit) also leaves.
@@ -349,7 +362,11 @@ fn liveliness_join_and_leave(b: Backend) {
     expect_event(&watcher, AliveEvent::Left(evaluator.member()));
     let evaluator2 = net.open(SenderId::evaluator(0));
     let member2 = evaluator2.member();
-    assert_ne!(member2, evaluator.member(), "a new incarnation is a new member");
+    assert_ne!(
+        member2,
+        evaluator.member(),
+        "a new incarnation is a new member"
+    );
     let token2 = evaluator2.declare_alive().expect("token");
     expect_event(&watcher, AliveEvent::Joined(member2));
     drop(token2);
@@ -416,14 +433,23 @@ fn crashed_process_is_detected_and_cleaned(b: Backend) {
 
     let spec = format!(
         "{};{};{};{}",
-        if b == Backend::Iceoryx2 { "iceoryx2" } else { "zenoh" },
+        if b == Backend::Iceoryx2 {
+            "iceoryx2"
+        } else {
+            "zenoh"
+        },
         net.run,
         net.prefix,
         net.endpoint
     );
     let exe = std::env::current_exe().expect("test binary");
     let child = Command::new(exe)
-        .args(["suite::child_process", "--exact", "--nocapture", "--test-threads=1"])
+        .args([
+            "suite::child_process",
+            "--exact",
+            "--nocapture",
+            "--test-threads=1",
+        ])
         .env(CHILD_ENV, spec)
         .stdin(Stdio::piped())
         .stdout(Stdio::piped())
@@ -431,21 +457,30 @@ fn crashed_process_is_detected_and_cleaned(b: Backend) {
         .spawn()
         .expect("spawn child");
     let mut child = KillOnDrop(child);
+    // Read the child's output on a thread, so that waiting for "ready" is bounded.
     let stdout = child.0.stdout.take().expect("stdout");
-    let mut instance = None;
-    for line in BufReader::new(stdout).lines() {
-        let line = line.expect("child output");
-        if let Some(i) = line.strip_prefix("CHILD-READY ") {
-            instance = Some(i.trim().parse::<u64>().expect("instance"));
-            break;
+    let (tx, rx) = std::sync::mpsc::channel();
+    std::thread::spawn(move || {
+        for line in BufReader::new(stdout).lines() {
+            let Ok(line) = line else { return };
+            if let Some(pos) = line.find("CHILD-READY ") {
+                let _ = tx.send(line[pos + "CHILD-READY ".len()..].trim().to_string());
+            }
         }
-    }
+    });
+    let instance = rx
+        .recv_timeout(WAIT)
+        .ok()
+        .and_then(|i| i.parse::<u64>().ok());
     let member = Member {
         sender: SenderId::actor(9),
         instance: instance.expect("child became ready"),
     };
     expect_event(&watcher, AliveEvent::Joined(member));
-    let m = sub.recv_timeout(WAIT).expect("recv").expect("child's batch");
+    let m = sub
+        .recv_timeout(WAIT)
+        .expect("recv")
+        .expect("child's batch");
     assert_eq!(m.header.sender, SenderId::actor(9));
 
     // Crash: SIGKILL, and reap it (a zombie would still look alive to iceoryx2).
@@ -509,7 +544,9 @@ fn api_misuse_is_an_error(b: Backend) {
     cfg.max_message_bytes = 4096;
     cfg.iceoryx2.latest_sample_bytes = 4096;
     let small = net.open_with(cfg);
-    let p = small.publisher(&keys::transitions(&net.run, 0)).expect("pub");
+    let p = small
+        .publisher(&keys::transitions(&net.run, 0))
+        .expect("pub");
     assert!(matches!(
         p.publish(0, &fixtures::episode(45, 10, 0)),
         Err(TransportError::Encode(proto::EncodeError::Oversized { .. }))
@@ -520,7 +557,10 @@ fn api_misuse_is_an_error(b: Backend) {
     cfg.iceoryx2.max_processes = 1;
     match Transport::open(cfg) {
         Err(TransportError::Config(msg)) => {
-            assert!(msg.contains("subscriber_queue") && msg.contains("max_processes"), "{msg}")
+            assert!(
+                msg.contains("subscriber_queue") && msg.contains("max_processes"),
+                "{msg}"
+            )
         }
         Err(e) => panic!("unexpected error {e}"),
         Ok(_) => panic!("invalid config accepted"),
@@ -546,7 +586,8 @@ fn shared_memory_removed_on_shutdown(b: Backend) {
             .latest_subscriber(&keys::weights(&net.run))
             .expect("sub");
         assert!(p.wait_for_subscribers(WAIT).expect("matching"));
-        p.publish(1, &fixtures::episode(45, 10, 0)).expect("publish");
+        p.publish(1, &fixtures::episode(45, 10, 0))
+            .expect("publish");
         assert!(sub.recv_timeout(WAIT).expect("recv").is_some());
         assert_eq!(
             ws.next(WAIT).expect("next").map(|m| m.body.version),

@@ -1,0 +1,403 @@
+//! One episode: a trajectory picture with the attention weight of every human at chosen times
+//! (paper Fig. 7) and the same scene animated as a GIF.
+//!
+//! A human's colour is its attention weight in the decision the robot took at that instant (the
+//! SARL/FSRL attention over humans, the chosen action's row), on one colour scale for the whole
+//! picture; the number beside it is the weight. Policies without attention (ORCA, LSTM-RL) show
+//! humans in plain colours.
+
+use std::path::{Path, PathBuf};
+
+use plotters::coord::types::RangedCoordf64;
+use plotters::coord::Shift;
+use plotters::prelude::*;
+use plotters::style::text_anchor::{HPos, Pos, VPos};
+
+use crate::style::{self, DARK, ROBOT, STANDING};
+use crate::{create_parent, fonts, DrawError, Figure, VizError};
+
+/// What does not change over an episode about one human.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct HumanInfo {
+    pub radius_m: f64,
+    pub standing: bool,
+    pub goal: (f64, f64),
+}
+
+/// Everyone's position at one instant, and the attention of the decision taken then.
+#[derive(Debug, Clone, PartialEq)]
+pub struct TraceFrame {
+    pub time_s: f64,
+    pub robot: (f64, f64),
+    pub heading_rad: f64,
+    pub humans: Vec<(f64, f64)>,
+    /// One weight per human (summing to 1), or `None` (no decision at this instant, or a
+    /// policy without attention).
+    pub attention: Option<Vec<f64>>,
+}
+
+/// A recorded episode, ready to draw.
+#[derive(Debug, Clone, PartialEq)]
+pub struct EpisodeTrace {
+    pub title: String,
+    pub robot_radius_m: f64,
+    pub robot_goal: (f64, f64),
+    pub humans: Vec<HumanInfo>,
+    /// Frames at t = 0 and after every step.
+    pub frames: Vec<TraceFrame>,
+    /// How the episode ended, e.g. "success after 11.50 s".
+    pub outcome: String,
+}
+
+impl EpisodeTrace {
+    /// Index of the frame nearest to `t_s`.
+    pub fn frame_at(&self, t_s: f64) -> usize {
+        let mut best = 0;
+        for (k, f) in self.frames.iter().enumerate() {
+            if (f.time_s - t_s).abs() < (self.frames[best].time_s - t_s).abs() {
+                best = k;
+            }
+        }
+        best
+    }
+
+    fn has_attention(&self) -> bool {
+        self.frames.iter().any(|f| f.attention.is_some())
+    }
+
+    /// The attention shown at frame `k`: that frame's decision, or the last one before it (the
+    /// final frame has no decision of its own).
+    fn attention_at(&self, k: usize) -> Option<&[f64]> {
+        self.frames[..=k.min(self.frames.len().saturating_sub(1))]
+            .iter()
+            .rev()
+            .find_map(|f| f.attention.as_deref())
+    }
+
+    fn max_attention(&self, frames: &[usize]) -> f64 {
+        frames
+            .iter()
+            .filter_map(|&k| self.attention_at(k))
+            .flatten()
+            .copied()
+            .filter(|w| w.is_finite())
+            .fold(0.0, f64::max)
+    }
+}
+
+/// The trajectory picture: one panel per chosen time.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Trajectory {
+    pub trace: EpisodeTrace,
+    /// Times (s) of the panels; each picks the nearest frame.
+    pub times_s: Vec<f64>,
+}
+
+const HALF_M: f64 = 5.5;
+const PANEL: u32 = 470;
+const TITLE_H: u32 = 44;
+const LEGEND_H: u32 = 34;
+const FOOT_H: u32 = 28;
+const BAR_W: u32 = 110;
+/// Frames the GIF holds the last picture for.
+pub const GIF_HOLD_FRAMES: usize = 8;
+
+fn circle(c: (f64, f64), r: f64) -> Vec<(f64, f64)> {
+    (0..32)
+        .map(|k| {
+            let a = k as f64 * std::f64::consts::TAU / 32.0;
+            (c.0 + r * a.cos(), c.1 + r * a.sin())
+        })
+        .collect()
+}
+
+fn star(c: (f64, f64), outer: f64) -> Vec<(f64, f64)> {
+    (0..10)
+        .map(|k| {
+            let r = if k % 2 == 0 { outer } else { outer * 0.42 };
+            let a = std::f64::consts::FRAC_PI_2 + k as f64 * std::f64::consts::PI / 5.0;
+            (c.0 + r * a.cos(), c.1 + r * a.sin())
+        })
+        .collect()
+}
+
+type Chart<'a, DB> = ChartContext<'a, DB, Cartesian2d<RangedCoordf64, RangedCoordf64>>;
+
+/// Draws the scene at frame `k` on `area`; `max_w` is the top of the attention colour scale.
+fn scene<DB: DrawingBackend>(
+    area: &DrawingArea<DB, Shift>,
+    trace: &EpisodeTrace,
+    k: usize,
+    max_w: f64,
+    caption: &str,
+    small: bool,
+) -> Result<(), DrawError> {
+    let mut chart: Chart<DB> = ChartBuilder::on(area)
+        .caption(caption, style::bold(if small { 15.0 } else { 17.0 }))
+        .margin(8)
+        .x_label_area_size(if small { 22 } else { 36 })
+        .y_label_area_size(if small { 28 } else { 40 })
+        .build_cartesian_2d(-HALF_M..HALF_M, -HALF_M..HALF_M)?;
+    let mut mesh = chart.configure_mesh();
+    mesh.light_line_style(style::GRID)
+        .bold_line_style(style::GRID)
+        .x_labels(12)
+        .y_labels(12)
+        .x_label_formatter(&|x| format!("{x:.0}"))
+        .y_label_formatter(&|y| format!("{y:.0}"))
+        .label_style(style::font(11.0))
+        .axis_desc_style(style::font(13.0));
+    if !small {
+        mesh.x_desc("x (m)").y_desc("y (m)");
+    }
+    mesh.draw()?;
+    let frames = &trace.frames;
+    let k = k.min(frames.len().saturating_sub(1));
+    let Some(now) = frames.get(k) else {
+        return Ok(());
+    };
+
+    // Goals and paths so far.
+    chart.draw_series(std::iter::once(Polygon::new(
+        star(trace.robot_goal, 0.32),
+        RGBColor(0xf1, 0xc4, 0x0f).filled(),
+    )))?;
+    for (i, h) in trace.humans.iter().enumerate() {
+        if h.standing {
+            continue;
+        }
+        let c = style::palette(i);
+        let path: Vec<(f64, f64)> = frames[..=k].iter().map(|f| f.humans[i]).collect();
+        chart.draw_series(std::iter::once(PathElement::new(
+            path,
+            c.mix(0.45).stroke_width(1),
+        )))?;
+        let g = h.goal;
+        chart.draw_series(std::iter::once(Cross::new(g, 4, c.mix(0.6).stroke_width(1))))?;
+    }
+    let robot_path: Vec<(f64, f64)> = frames.iter().map(|f| f.robot).collect();
+    chart.draw_series(std::iter::once(PathElement::new(
+        robot_path.clone(),
+        ROBOT.mix(0.25).stroke_width(2),
+    )))?;
+    chart.draw_series(std::iter::once(PathElement::new(
+        robot_path[..=k].to_vec(),
+        ROBOT.stroke_width(3),
+    )))?;
+
+    // Humans now, coloured by attention.
+    let attention = trace.attention_at(k);
+    for (i, h) in trace.humans.iter().enumerate() {
+        let p = now.humans[i];
+        let weight = attention.and_then(|a| a.get(i).copied());
+        let fill = match weight {
+            Some(w) => style::sequential(if max_w > 0.0 { w / max_w } else { 0.0 }),
+            None if h.standing => STANDING,
+            None => style::palette(i),
+        };
+        let body = circle(p, h.radius_m);
+        chart.draw_series(std::iter::once(Polygon::new(
+            body.clone(),
+            fill.mix(if weight.is_some() { 0.95 } else { 0.55 }).filled(),
+        )))?;
+        let mut outline = body;
+        outline.push(outline[0]);
+        let edge = if h.standing {
+            BLACK.stroke_width(3)
+        } else {
+            DARK.stroke_width(1)
+        };
+        chart.draw_series(std::iter::once(PathElement::new(outline, edge)))?;
+        if let Some(w) = weight {
+            chart.draw_series(std::iter::once(Text::new(
+                format!("{w:.2}"),
+                (p.0 + h.radius_m * 0.8, p.1 + h.radius_m * 0.9),
+                style::font(if small { 11.0 } else { 13.0 })
+                    .pos(Pos::new(HPos::Left, VPos::Bottom)),
+            )))?;
+        }
+    }
+
+    // The robot now, with its heading.
+    let r = trace.robot_radius_m;
+    let mut body = circle(now.robot, r);
+    chart.draw_series(std::iter::once(Polygon::new(
+        body.clone(),
+        ROBOT.mix(0.9).filled(),
+    )))?;
+    body.push(body[0]);
+    chart.draw_series(std::iter::once(PathElement::new(body, BLACK.stroke_width(1))))?;
+    let tip = (
+        now.robot.0 + 1.6 * r * now.heading_rad.cos(),
+        now.robot.1 + 1.6 * r * now.heading_rad.sin(),
+    );
+    chart.draw_series(std::iter::once(PathElement::new(
+        vec![now.robot, tip],
+        BLACK.stroke_width(2),
+    )))?;
+    Ok(())
+}
+
+/// The attention colour scale, drawn vertically in `area`.
+fn colour_bar<DB: DrawingBackend>(
+    area: &DrawingArea<DB, Shift>,
+    max_w: f64,
+) -> Result<(), DrawError> {
+    let (_, h) = area.dim_in_pixel();
+    let (top, bottom) = (60, h as i32 - 60);
+    let x0 = 16;
+    area.draw(&Text::new(
+        "attention".to_string(),
+        (x0 - 6, top - 30),
+        style::bold(14.0).pos(Pos::new(HPos::Left, VPos::Center)),
+    ))?;
+    let steps = 64;
+    for s in 0..steps {
+        let t = s as f64 / (steps - 1) as f64;
+        let y1 = bottom - ((bottom - top) as f64 * s as f64 / steps as f64) as i32;
+        let y0 = bottom - ((bottom - top) as f64 * (s + 1) as f64 / steps as f64) as i32;
+        area.draw(&Rectangle::new(
+            [(x0, y0), (x0 + 22, y1)],
+            style::sequential(t).filled(),
+        ))?;
+    }
+    area.draw(&Rectangle::new([(x0, top), (x0 + 22, bottom)], BLACK))?;
+    for (t, y) in [(0.0, bottom), (0.5, (top + bottom) / 2), (1.0, top)] {
+        area.draw(&Text::new(
+            format!("{:.2}", t * max_w),
+            (x0 + 28, y),
+            style::font(13.0).pos(Pos::new(HPos::Left, VPos::Center)),
+        ))?;
+    }
+    Ok(())
+}
+
+fn legend_items(trace: &EpisodeTrace) -> Vec<(String, RGBColor)> {
+    let mut items = vec![
+        ("robot (path, heading)".to_string(), ROBOT),
+        ("robot goal".to_string(), RGBColor(0xf1, 0xc4, 0x0f)),
+        ("standing human (thick outline)".to_string(), STANDING),
+    ];
+    if trace.has_attention() {
+        items.push((
+            "human colour = attention weight".to_string(),
+            style::sequential(0.7),
+        ));
+    } else {
+        items.push(("dynamic human (no attention)".to_string(), style::palette(0)));
+    }
+    items
+}
+
+impl Trajectory {
+    fn frames(&self) -> Vec<usize> {
+        let mut ks: Vec<usize> = self
+            .times_s
+            .iter()
+            .map(|&t| self.trace.frame_at(t))
+            .collect();
+        if ks.is_empty() {
+            ks.push(self.trace.frames.len().saturating_sub(1));
+        }
+        ks
+    }
+}
+
+impl Figure for Trajectory {
+    fn size(&self) -> (u32, u32) {
+        let n = self.frames().len() as u32;
+        let bar = if self.trace.has_attention() { BAR_W } else { 0 };
+        (
+            (n * PANEL + bar).max(760),
+            TITLE_H + LEGEND_H + PANEL + FOOT_H,
+        )
+    }
+
+    fn draw<DB: DrawingBackend>(&self, root: &DrawingArea<DB, Shift>) -> Result<(), DrawError> {
+        let trace = &self.trace;
+        let body = style::titled(root, &trace.title, TITLE_H)?;
+        let (legend, body) = body.split_vertically(LEGEND_H);
+        style::legend_row(&legend, &legend_items(trace))?;
+        let (panels_area, foot) = body.split_vertically(PANEL);
+        let ks = self.frames();
+        let max_w = trace.max_attention(&ks);
+        let bar = if trace.has_attention() { BAR_W } else { 0 };
+        let (w, _) = panels_area.dim_in_pixel();
+        let (panels_area, bar_area) = panels_area.split_horizontally(w - bar);
+        let panels = panels_area.split_evenly((1, ks.len()));
+        for (panel, &k) in panels.iter().zip(&ks) {
+            let t = trace.frames.get(k).map_or(0.0, |f| f.time_s);
+            scene(panel, trace, k, max_w, &format!("t = {t:.2} s"), false)?;
+        }
+        if bar > 0 {
+            colour_bar(&bar_area, max_w)?;
+        }
+        let (fw, _) = foot.dim_in_pixel();
+        foot.draw(&Text::new(
+            format!(
+                "{}; robot path: bold up to t, faint after; human paths up to t",
+                trace.outcome
+            ),
+            (fw as i32 / 2, 4),
+            style::font(13.0).pos(Pos::new(HPos::Center, VPos::Top)),
+        ))?;
+        Ok(())
+    }
+}
+
+/// Writes the episode as an animated GIF (one frame per step, the last held for
+/// [`GIF_HOLD_FRAMES`] frames), `side` pixels wide; returns the path.
+pub fn save_gif(
+    trace: &EpisodeTrace,
+    path: &Path,
+    side: u32,
+    frame_delay_ms: u32,
+) -> Result<PathBuf, VizError> {
+    fonts::ensure()?;
+    if trace.frames.is_empty() {
+        return Err(VizError::Empty(format!(
+            "{}: the episode has no frames",
+            path.display()
+        )));
+    }
+    create_parent(path)?;
+    let draw_err = |reason: String| VizError::Draw {
+        path: path.to_path_buf(),
+        reason,
+    };
+    let bar = if trace.has_attention() { 80 } else { 0 };
+    let size = (side + bar, side + 34);
+    let all: Vec<usize> = (0..trace.frames.len()).collect();
+    let max_w = trace.max_attention(&all);
+    let root = BitMapBackend::gif(path, size, frame_delay_ms)
+        .map_err(|e| draw_err(e.to_string()))?
+        .into_drawing_area();
+    let last = trace.frames.len() - 1;
+    let frames = (0..trace.frames.len()).chain(std::iter::repeat_n(last, GIF_HOLD_FRAMES));
+    for k in frames {
+        let draw = || -> Result<(), DrawError> {
+            root.fill(&WHITE)?;
+            let (top, rest) = root.split_vertically(34);
+            let t = trace.frames[k].time_s;
+            let text = if k == last {
+                format!("{}: {}", trace.title, trace.outcome)
+            } else {
+                format!("{}: t = {t:.2} s", trace.title)
+            };
+            top.draw(&Text::new(
+                text,
+                (size.0 as i32 / 2, 17),
+                style::bold(14.0).pos(Pos::new(HPos::Center, VPos::Center)),
+            ))?;
+            let (scene_area, bar_area) = rest.split_horizontally(side);
+            scene(&scene_area, trace, k, max_w, "", true)?;
+            if bar > 0 {
+                colour_bar(&bar_area, max_w)?;
+            }
+            root.present()?;
+            Ok(())
+        };
+        draw().map_err(|e| draw_err(e.0))?;
+    }
+    Ok(path.to_path_buf())
+}
