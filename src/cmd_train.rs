@@ -232,6 +232,7 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
             .map_or_else(|| "run".into(), |n| n.to_string_lossy().into_owned()),
         setting: setting.name().to_string(),
         run_seed,
+        accepted_below: Default::default(),
     };
     let metrics_path = out.join("metrics.jsonl");
     let mut metrics = std::fs::OpenOptions::new()

@@ -12,6 +12,8 @@ use sim::{ConfigError, Setting, SimConfig};
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct RunSection {
+    /// Run id: the first key chunk after `fsrl/` (letters, digits, `-`, `_`).
+    pub id: String,
     /// orca, lstm-rl, sarl, fsrl, sarl+foresight, sarl+efficiency
     pub method: String,
     /// One of the six settings, e.g. env1-invisible.
@@ -23,6 +25,7 @@ pub struct RunSection {
 impl Default for RunSection {
     fn default() -> Self {
         Self {
+            id: "local".into(),
             method: "fsrl".into(),
             setting: "env1-invisible".into(),
             seed: 0,
@@ -39,6 +42,123 @@ pub struct FileConfig {
     pub sim: SimConfig,
     /// The training schedule (SPEC §5).
     pub train: TrainConfig,
+    /// How processes talk (zenoh session, iceoryx2 data plane).
+    pub transport: TransportSection,
+    pub learner: LearnerSection,
+    pub actor: ActorSection,
+    pub evaluator: EvaluatorSection,
+}
+
+/// The transport of every process of the run (`transport::TransportConfig` without the run id
+/// and sender, which come from `[run]` and the role).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct TransportSection {
+    /// "zenoh" (any machines) or "iceoryx2" (shared memory, one machine; telemetry stays on zenoh).
+    pub data_plane: transport::DataPlane,
+    pub zenoh: transport::ZenohConfig,
+    pub iceoryx2: transport::IceoryxConfig,
+    pub max_message_bytes: usize,
+    pub publish_timeout_ms: u64,
+    pub subscriber_queue: usize,
+}
+
+impl Default for TransportSection {
+    fn default() -> Self {
+        let t = transport::TransportConfig::new(
+            proto::RunId::new("local").expect("valid id"),
+            proto::SenderId::new(proto::Role::Monitor, 0),
+        );
+        Self {
+            data_plane: t.data_plane,
+            zenoh: t.zenoh,
+            iceoryx2: t.iceoryx2,
+            max_message_bytes: t.max_message_bytes,
+            publish_timeout_ms: t.publish_timeout_ms,
+            subscriber_queue: t.subscriber_queue,
+        }
+    }
+}
+
+impl TransportSection {
+    /// The transport config of `sender` in run `run_id`.
+    pub fn for_sender(
+        &self,
+        run_id: &str,
+        sender: proto::SenderId,
+    ) -> anyhow::Result<transport::TransportConfig> {
+        let run =
+            proto::RunId::new(run_id).map_err(|e| anyhow::anyhow!("run.id `{run_id}`: {e}"))?;
+        let mut t = transport::TransportConfig::new(run, sender);
+        t.data_plane = self.data_plane;
+        t.zenoh = self.zenoh.clone();
+        t.iceoryx2 = self.iceoryx2.clone();
+        t.max_message_bytes = self.max_message_bytes;
+        t.publish_timeout_ms = self.publish_timeout_ms;
+        t.subscriber_queue = self.subscriber_queue;
+        Ok(t)
+    }
+}
+
+/// The learner process.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct LearnerSection {
+    /// Checkpoints and the write-ahead log (default: `runs/<run.id>`).
+    pub run_dir: Option<std::path::PathBuf>,
+    /// Episodes an actor may run ahead of what the learner has accepted.
+    pub in_flight_per_actor: u64,
+    pub metrics_interval_ms: u64,
+    /// After the run, how long to wait for actors and evaluators to leave.
+    pub linger_ms: u64,
+}
+
+impl Default for LearnerSection {
+    fn default() -> Self {
+        Self {
+            run_dir: None,
+            in_flight_per_actor: 2,
+            metrics_interval_ms: 1000,
+            linger_ms: 10_000,
+        }
+    }
+}
+
+/// An actor process.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct ActorSection {
+    /// Actor index (unique within the run).
+    pub id: u32,
+}
+
+/// The evaluator process.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct EvaluatorSection {
+    /// Evaluate a snapshot every this many RL episodes (0: only the final weights).
+    pub every_episodes: u64,
+    pub episodes_per_setting: u32,
+    pub seed_start: u64,
+    /// Settings to evaluate (default: all six).
+    pub settings: Vec<String>,
+    /// Worker threads.
+    pub threads: usize,
+    /// Where reports go (default: `<run_dir>/eval`).
+    pub out_dir: Option<std::path::PathBuf>,
+}
+
+impl Default for EvaluatorSection {
+    fn default() -> Self {
+        Self {
+            every_episodes: 1000,
+            episodes_per_setting: 500,
+            seed_start: 1000,
+            settings: Setting::ALL.iter().map(|s| s.name().to_string()).collect(),
+            threads: 1,
+            out_dir: None,
+        }
+    }
 }
 
 /// A validated run configuration.
@@ -47,6 +167,27 @@ pub struct Resolved {
     pub method: Method,
     pub setting: Setting,
     pub file: FileConfig,
+}
+
+impl Resolved {
+    pub fn spec(&self) -> policy::method::RunSpec {
+        policy::method::RunSpec {
+            method: self.method,
+            setting: self.setting,
+            sim: self.file.sim.clone(),
+            train: self.file.train.clone(),
+            seed: self.file.run.seed,
+        }
+    }
+
+    /// The run directory of the learner (and default home of everything else).
+    pub fn run_dir(&self) -> std::path::PathBuf {
+        self.file
+            .learner
+            .run_dir
+            .clone()
+            .unwrap_or_else(|| std::path::PathBuf::from("runs").join(&self.file.run.id))
+    }
 }
 
 impl FileConfig {
@@ -78,6 +219,22 @@ impl FileConfig {
             }
         };
         problems.extend(self.train.problems());
+        if let Err(e) = proto::RunId::new(self.run.id.as_str()) {
+            problems.push(format!("run.id `{}`: {e}", self.run.id));
+        }
+        if let Err(e) = self.sim.resolve_settings(&self.evaluator.settings) {
+            problems.extend(
+                e.problems
+                    .into_iter()
+                    .map(|p| format!("evaluator.settings: {p}")),
+            );
+        }
+        if self.evaluator.episodes_per_setting == 0 {
+            problems.push("evaluator.episodes_per_setting must be at least 1".into());
+        }
+        if self.learner.in_flight_per_actor == 0 {
+            problems.push("learner.in_flight_per_actor must be at least 1".into());
+        }
         if self.sim.humans.count == 0 && method.is_some_and(|m| m.net().is_some()) {
             problems.push("sim.humans.count must be at least 1 for a learned policy".into());
         }

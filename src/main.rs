@@ -1,6 +1,7 @@
 //! `fsrl`: one command for simulating, training, evaluating and watching crowd-navigation
 //! policies. The binary is thin: parse arguments, install logging, run a subcommand.
 
+mod cmd_roles;
 mod cmd_sim;
 mod cmd_train;
 mod config;
@@ -28,6 +29,12 @@ enum Command {
     Sim(cmd_sim::SimArgs),
     /// Train one method on one setting: imitation, then deep V-learning, then evaluation.
     Train(cmd_train::TrainArgs),
+    /// The learner process of a distributed run.
+    Learner(cmd_roles::LearnerArgs),
+    /// An actor process of a distributed run.
+    Actor(cmd_roles::ActorArgs),
+    /// The evaluator process of a distributed run, or `--checkpoint FILE` offline.
+    Evaluator(cmd_roles::EvaluatorArgs),
 }
 
 fn main() -> ExitCode {
@@ -37,11 +44,15 @@ fn main() -> ExitCode {
                 .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info")),
         )
         .with_writer(std::io::stderr)
+        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
         .init();
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Sim(args) => cmd_sim::run(args),
         Command::Train(args) => cmd_train::run(args),
+        Command::Learner(args) => cmd_roles::learner(args),
+        Command::Actor(args) => cmd_roles::actor(args),
+        Command::Evaluator(args) => cmd_roles::evaluator(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -1,6 +1,8 @@
 //! `evaluator`: scores a policy (the ORCA baseline or a value network) on the test seeds of any
 //! settings with the paper's metrics, spreading settings and seeds over threads.
 
+pub mod process;
+
 use policy::lookahead::{HumanModel, Lookahead};
 use policy::method::Method;
 use policy::rollout::{rollout, Behaviour};

@@ -64,6 +64,9 @@ pub struct RunInfo {
     pub run_id: String,
     pub setting: String,
     pub run_seed: u64,
+    /// Per actor, every episode index below this one has been accepted (distributed runs).
+    #[serde(default)]
+    pub accepted_below: std::collections::BTreeMap<u32, u64>,
 }
 
 /// A loaded checkpoint.

@@ -31,6 +31,8 @@ pub enum LearnerError {
     Policy(#[from] PolicyError),
     #[error("out of phase: {0}")]
     Phase(&'static str),
+    #[error("environment: {0}")]
+    Env(String),
 }
 
 /// Progress counters (also checkpointed).

@@ -4,6 +4,9 @@
 
 pub mod checkpoint;
 pub mod core;
+pub mod imitation;
+pub mod process;
 pub mod replay;
+pub mod wal;
 
 pub use crate::core::{Counters, LearnerCore, LearnerError};

@@ -172,6 +172,7 @@ fn checkpoints_load_back_bit_exact_and_refuse_damage() {
         run_id: "test".into(),
         setting: setting().name().into(),
         run_seed: 7,
+        accepted_below: Default::default(),
     };
     let sim_cfg = Method::Fsrl.sim_config(&SimConfig::default());
     checkpoint::save(&path, &core, &sim_cfg, &run).unwrap();

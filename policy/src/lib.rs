@@ -27,6 +27,7 @@ pub mod rollout;
 #[cfg(test)]
 mod tests;
 pub mod train;
+pub mod wire;
 
 pub use config::{LstmRlConfig, NetConfig, NetKind, ParamLayout, ParamSpec, SarlConfig};
 pub use error::PolicyError;

@@ -348,3 +348,22 @@ mod tests {
         assert_eq!(bad.problems().len(), 3, "{:?}", bad.problems());
     }
 }
+
+/// What every process of a run agrees on.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RunSpec {
+    pub method: Method,
+    pub setting: sim::Setting,
+    /// The simulator config before the method's reward switches.
+    pub sim: SimConfig,
+    pub train: TrainConfig,
+    /// Run seed: weights and every episode seed derive from it.
+    pub seed: u64,
+}
+
+impl RunSpec {
+    /// The simulator config the method runs with.
+    pub fn method_sim(&self) -> SimConfig {
+        self.method.sim_config(&self.sim)
+    }
+}

@@ -195,7 +195,7 @@ fn weights_latency(c: &mut Criterion) {
         assert!(wp.wait_for_subscribers(WAIT).expect("matching"));
         let n_subs = subscribers.len();
         // One broadcast: publish, then wait until every subscriber holds this version.
-        let mut broadcast = |i: u64| -> Duration {
+        let broadcast = |i: u64| -> Duration {
             let w = &weights[(i % 2) as usize];
             let t0 = Instant::now();
             let seq = wp.publish(i, w).expect("publish");

@@ -19,13 +19,16 @@ use iceoryx2::port::notifier::Notifier;
 use iceoryx2::port::publisher::Publisher;
 use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::port::update_connections::UpdateConnections;
-use iceoryx2::port::{BackpressureAction, BackpressureInfo, LoanError};
+use iceoryx2::port::{BackpressureAction, BackpressureInfo, LoanError, SendError};
 use iceoryx2::prelude::*;
 use iceoryx2::service::port_factory::{event, publish_subscribe};
 use proto::{Delivery, Fanout, RunId, SenderId};
 
 use crate::config::IceoryxConfig;
 use crate::error::{iox_err, TransportError};
+
+/// Longest single block on a listener (see [`IoxSubscriber::wait`]).
+const MAX_WAIT_SLICE: Duration = Duration::from_millis(10);
 
 /// Thread-safe ports (Send + Sync), so handles can move between threads.
 type Svc = ipc_threadsafe::Service;
@@ -327,12 +330,13 @@ impl IoxPublisher {
             })?;
         *sample.user_header_mut() = self.key_hash;
         let sample = sample.write_from_slice(bytes);
-        let delivered = sample.send().map_err(|e| {
-            tracing::debug!(key = %self.key, error = ?e, "iceoryx2 send failed");
-            TransportError::PublishTimeout {
+        let delivered = sample.send().map_err(|e| match e {
+            // Our backpressure handler gave up after the publish timeout.
+            SendError::UnableToDeliver => TransportError::PublishTimeout {
                 topic: self.key.clone(),
                 timeout_ms: self.timeout_ms,
-            }
+            },
+            other => iox_err("send")(other),
         })?;
         self.notifier.notify().map_err(iox_err("notify"))?;
         Ok(delivered)
@@ -444,10 +448,12 @@ impl IoxSubscriber {
         }
     }
 
-    /// Blocks until a publisher signals new data or `timeout` passes.
+    /// Blocks until a publisher signals new data or `timeout` passes. Waits at most
+    /// [`MAX_WAIT_SLICE`] at a time: callers re-check for samples after every wake-up, so a
+    /// missed notification costs at most one slice of latency, never a stall.
     pub(crate) fn wait(&self, timeout: Duration) -> Result<(), TransportError> {
         self.listener
-            .timed_wait(|_| {}, timeout)
+            .timed_wait(|_| {}, timeout.min(MAX_WAIT_SLICE))
             .map_err(iox_err("wait"))?;
         Ok(())
     }

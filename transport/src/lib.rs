@@ -676,6 +676,11 @@ impl<M> Slot<M> {
         if !live && s.live_seen {
             return;
         }
+        // The same message twice (queried and live, or queried twice) is one update.
+        if s.current.as_ref().is_some_and(|c| c.header == m.header) {
+            s.live_seen |= live;
+            return;
+        }
         s.live_seen |= live;
         s.current = Some(Arc::new(m));
         s.generation += 1;

@@ -7,9 +7,10 @@ use proto::{Delivery, Fanout};
 use zenoh::bytes::ZBytes;
 use zenoh::handlers::{FifoChannel, FifoChannelHandler};
 use zenoh::liveliness::LivelinessToken;
+use zenoh::matching::MatchingListener;
 use zenoh::pubsub::{Publisher, Subscriber};
 use zenoh::qos::{CongestionControl, Priority};
-use zenoh::query::{ConsolidationMode, QueryTarget, Queryable};
+use zenoh::query::{ConsolidationMode, Querier, QueryTarget, Queryable};
 use zenoh::sample::{Sample, SampleKind};
 use zenoh::{Session, Wait};
 
@@ -145,8 +146,13 @@ impl LatestPublisher {
 }
 
 /// Subscriber of a latest-value topic: live samples go to `on_live`; the publisher's current
-/// value (queried once at start) goes to `on_initial`.
+/// value goes to `on_initial`. The current value is queried at once and again whenever a
+/// matching queryable (a latest-value publisher) appears, so a subscriber that starts before
+/// the publisher, or before the publisher's declaration reached it, still gets the value.
 pub(crate) struct LatestSubscriber {
+    // Drop order: the listener (whose callback holds the querier) goes first.
+    _matching: MatchingListener<()>,
+    _querier: Arc<Querier<'static>>,
     _subscriber: Subscriber<()>,
 }
 
@@ -166,19 +172,46 @@ impl LatestSubscriber {
             })
             .wait()
             .map_err(zenoh_err("declare subscriber"))?;
-        session
-            .get(key.to_string())
-            .target(QueryTarget::BestMatching)
-            .consolidation(ConsolidationMode::None)
-            .timeout(LATEST_QUERY_TIMEOUT)
-            .callback(move |reply| {
-                if let Ok(sample) = reply.result() {
-                    with_payload(sample, &on_initial);
+        let querier = Arc::new(
+            session
+                .declare_querier(key.to_string())
+                .target(QueryTarget::BestMatching)
+                .consolidation(ConsolidationMode::None)
+                .timeout(LATEST_QUERY_TIMEOUT)
+                .wait()
+                .map_err(zenoh_err("declare querier"))?,
+        );
+        let on_initial = Arc::new(on_initial);
+        let query = {
+            let querier = Arc::clone(&querier);
+            move || {
+                let on_initial = Arc::clone(&on_initial);
+                let sent = querier
+                    .get()
+                    .callback(move |reply| {
+                        if let Ok(sample) = reply.result() {
+                            with_payload(sample, &*on_initial);
+                        }
+                    })
+                    .wait();
+                if let Err(e) = sent {
+                    tracing::debug!(error = %e, "latest-value query failed");
+                }
+            }
+        };
+        query();
+        let matching = querier
+            .matching_listener()
+            .callback(move |status| {
+                if status.matching() {
+                    query();
                 }
             })
             .wait()
-            .map_err(zenoh_err("query latest value"))?;
+            .map_err(zenoh_err("declare matching listener"))?;
         Ok(Self {
+            _matching: matching,
+            _querier: querier,
             _subscriber: subscriber,
         })
     }

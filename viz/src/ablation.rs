@@ -109,12 +109,7 @@ impl Figure for Ablation {
             style::font(12.0).pos(Pos::new(HPos::Center, VPos::Top)),
         ))?;
         let panels = body.split_evenly((1, 3));
-        outcome_panel(
-            &panels[0],
-            "outcome rates",
-            &self.variants,
-            &self.outcomes,
-        )?;
+        outcome_panel(&panels[0], "outcome rates", &self.variants, &self.outcomes)?;
         metric_panel(
             &panels[1],
             "Nav. Time (successful episodes)",

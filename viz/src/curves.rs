@@ -45,7 +45,10 @@ pub fn moving_average(points: &[(f64, f64)], window: usize) -> Vec<(f64, f64)> {
 }
 
 fn bounds(series: &[Vec<(f64, f64)>]) -> Option<(f64, f64, f64, f64)> {
-    let mut it = series.iter().flatten().filter(|p| p.0.is_finite() && p.1.is_finite());
+    let mut it = series
+        .iter()
+        .flatten()
+        .filter(|p| p.0.is_finite() && p.1.is_finite());
     let first = it.next()?;
     let mut b = (first.0, first.0, first.1, first.1);
     for p in it {

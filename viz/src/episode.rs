@@ -173,7 +173,11 @@ fn scene<DB: DrawingBackend>(
             c.mix(0.45).stroke_width(1),
         )))?;
         let g = h.goal;
-        chart.draw_series(std::iter::once(Cross::new(g, 4, c.mix(0.6).stroke_width(1))))?;
+        chart.draw_series(std::iter::once(Cross::new(
+            g,
+            4,
+            c.mix(0.6).stroke_width(1),
+        )))?;
     }
     let robot_path: Vec<(f64, f64)> = frames.iter().map(|f| f.robot).collect();
     chart.draw_series(std::iter::once(PathElement::new(
@@ -198,7 +202,8 @@ fn scene<DB: DrawingBackend>(
         let body = circle(p, h.radius_m);
         chart.draw_series(std::iter::once(Polygon::new(
             body.clone(),
-            fill.mix(if weight.is_some() { 0.95 } else { 0.55 }).filled(),
+            fill.mix(if weight.is_some() { 0.95 } else { 0.55 })
+                .filled(),
         )))?;
         let mut outline = body;
         outline.push(outline[0]);
@@ -226,7 +231,10 @@ fn scene<DB: DrawingBackend>(
         ROBOT.mix(0.9).filled(),
     )))?;
     body.push(body[0]);
-    chart.draw_series(std::iter::once(PathElement::new(body, BLACK.stroke_width(1))))?;
+    chart.draw_series(std::iter::once(PathElement::new(
+        body,
+        BLACK.stroke_width(1),
+    )))?;
     let tip = (
         now.robot.0 + 1.6 * r * now.heading_rad.cos(),
         now.robot.1 + 1.6 * r * now.heading_rad.sin(),
@@ -284,7 +292,10 @@ fn legend_items(trace: &EpisodeTrace) -> Vec<(String, RGBColor)> {
             style::sequential(0.7),
         ));
     } else {
-        items.push(("dynamic human (no attention)".to_string(), style::palette(0)));
+        items.push((
+            "dynamic human (no attention)".to_string(),
+            style::palette(0),
+        ));
     }
     items
 }

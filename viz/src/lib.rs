@@ -124,11 +124,9 @@ pub fn save<F: Figure>(fig: &F, stem: &Path) -> Result<Vec<PathBuf>, VizError> {
     create_parent(stem)?;
     let size = fig.size();
     let svg = with_ext(stem, "svg");
-    draw_on(SVGBackend::new(&svg, size).into_drawing_area(), fig).map_err(|e| {
-        VizError::Draw {
-            path: svg.clone(),
-            reason: e.0,
-        }
+    draw_on(SVGBackend::new(&svg, size).into_drawing_area(), fig).map_err(|e| VizError::Draw {
+        path: svg.clone(),
+        reason: e.0,
     })?;
     let png = with_ext(stem, "png");
     draw_on(BitMapBackend::new(&png, size).into_drawing_area(), fig).map_err(|e| {
@@ -144,11 +142,13 @@ pub fn save<F: Figure>(fig: &F, stem: &Path) -> Result<Vec<PathBuf>, VizError> {
 pub fn to_svg_string<F: Figure>(fig: &F) -> Result<String, VizError> {
     fonts::ensure()?;
     let mut s = String::new();
-    draw_on(SVGBackend::with_string(&mut s, fig.size()).into_drawing_area(), fig).map_err(
-        |e| VizError::Draw {
-            path: PathBuf::from("<memory>"),
-            reason: e.0,
-        },
-    )?;
+    draw_on(
+        SVGBackend::with_string(&mut s, fig.size()).into_drawing_area(),
+        fig,
+    )
+    .map_err(|e| VizError::Draw {
+        path: PathBuf::from("<memory>"),
+        reason: e.0,
+    })?;
     Ok(s)
 }

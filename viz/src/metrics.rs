@@ -113,7 +113,10 @@ mod tests {
     fn malformed_lines_name_file_and_line() {
         let text = "{\"phase\":\"imitation\",\"epoch\":0,\"loss\":0.5}\n{not json\n";
         let e = parse_metrics(text, Path::new("run/metrics.jsonl")).unwrap_err();
-        assert!(e.to_string().starts_with("run/metrics.jsonl:2: not JSON"), "{e}");
+        assert!(
+            e.to_string().starts_with("run/metrics.jsonl:2: not JSON"),
+            "{e}"
+        );
         let text = "{\"phase\":\"rl\",\"episode\":3}\n";
         let e = parse_metrics(text, Path::new("m.jsonl")).unwrap_err();
         assert!(e.to_string().starts_with("m.jsonl:1: bad rl line"), "{e}");

@@ -59,7 +59,12 @@ fn check_png(path: &Path, size: (u32, u32)) {
     assert_eq!((info.width, info.height), size, "{}", path.display());
     let px = info.color_type.samples();
     let colours: HashSet<&[u8]> = buf[..info.buffer_size()].chunks(px).collect();
-    assert!(colours.len() > 20, "{}: only {} colours", path.display(), colours.len());
+    assert!(
+        colours.len() > 20,
+        "{}: only {} colours",
+        path.display(),
+        colours.len()
+    );
 }
 
 fn count(fills: &[String], colour: &str) -> usize {
@@ -86,7 +91,10 @@ fn outcome_bars_have_three_bars_per_method_and_setting() {
         .iter()
         .map(|s| s.to_string())
         .collect();
-    let methods: Vec<String> = ["orca", "sarl", "fsrl"].iter().map(|s| s.to_string()).collect();
+    let methods: Vec<String> = ["orca", "sarl", "fsrl"]
+        .iter()
+        .map(|s| s.to_string())
+        .collect();
     let mut cells = vec![vec![Some(cell(0.8, 0.1)); 3]; 6];
     cells[5][0] = None;
     let fig = OutcomeBars {
@@ -157,7 +165,13 @@ fn learning_curves_draw_one_line_per_run_and_panel() {
     let files = save(&fig, &dir.join("curves")).unwrap();
     let (_, _, _, polylines, text) = svg_facts(&files[0]);
     assert_eq!(polylines, 4 * 2, "4 panels × 2 runs");
-    for word in ["success rate", "RL episode", "sarl s0", "fsrl s0", "imitation loss"] {
+    for word in [
+        "success rate",
+        "RL episode",
+        "sarl s0",
+        "fsrl s0",
+        "imitation loss",
+    ] {
         assert!(text.contains(word), "missing {word}");
     }
     check_png(&files[1], viz::Figure::size(&fig));
@@ -166,12 +180,22 @@ fn learning_curves_draw_one_line_per_run_and_panel() {
 #[test]
 fn ablation_has_a_bar_per_variant_and_metric() {
     let (_keep, dir) = out_dir();
-    let variants: Vec<String> = ["R_c", "+R_f", "+R_t", "all"].iter().map(|s| s.to_string()).collect();
+    let variants: Vec<String> = ["R_c", "+R_f", "+R_t", "all"]
+        .iter()
+        .map(|s| s.to_string())
+        .collect();
     let fig = Ablation {
         title: "Ablation".into(),
         variants,
         outcomes: vec![Some(cell(0.6, 0.3)); 4],
-        nav_time_s: vec![Some(Interval { mean: 12.0, lo: 11.5, hi: 12.5 }); 4],
+        nav_time_s: vec![
+            Some(Interval {
+                mean: 12.0,
+                lo: 11.5,
+                hi: 12.5
+            });
+            4
+        ],
         disc: vec![Some(Interval::exact(0.05)); 4],
         interval_note: "error bars: ± std over seeds".into(),
     };
@@ -237,11 +261,20 @@ fn trajectory_shows_every_human_at_every_chosen_time() {
     };
     let files = save(&fig, &dir.join("trajectory")).unwrap();
     let (_, _, _, _, text) = svg_facts(&files[0]);
-    for word in ["t = 2.00 s", "t = 5.00 s", "t = 7.50 s", "attention", "0.29"] {
+    for word in [
+        "t = 2.00 s",
+        "t = 5.00 s",
+        "t = 7.50 s",
+        "attention",
+        "0.29",
+    ] {
         assert!(text.contains(word), "missing {word}");
     }
     // Every human's weight is printed in every panel.
-    let weights = text.lines().filter(|l| l.starts_with("0.") && l.len() == 4).count();
+    let weights = text
+        .lines()
+        .filter(|l| l.starts_with("0.") && l.len() == 4)
+        .count();
     assert!(weights >= 3 * 6, "{weights} weight labels");
     check_png(&files[1], viz::Figure::size(&fig));
 

@@ -318,17 +318,21 @@ fn bad_input_is_counted_and_skipped(b: Backend) {
     assert_eq!(actor.rejected_count(), 0);
 }
 
-/// Waits for a specific membership event, skipping others.
-fn expect_event(w: &AliveWatcher, want: AliveEvent) {
+/// Waits until all of `want` have been seen, in any order (other events are skipped).
+fn expect_events(w: &AliveWatcher, want: &[AliveEvent]) {
+    let mut missing: Vec<AliveEvent> = want.to_vec();
     let deadline = Instant::now() + WAIT;
-    while Instant::now() < deadline {
+    while !missing.is_empty() && Instant::now() < deadline {
         match w.recv_timeout(deadline - Instant::now()).expect("watch") {
-            Some(e) if e == want => return,
-            Some(_) => {}
+            Some(e) => missing.retain(|m| *m != e),
             None => break,
         }
     }
-    panic!("no {want:?} within {WAIT:?}");
+    assert!(missing.is_empty(), "not seen within {WAIT:?}: {missing:?}");
+}
+
+fn expect_event(w: &AliveWatcher, want: AliveEvent) {
+    expect_events(w, &[want]);
 }
 
 fn liveliness_join_and_leave(b: Backend) {
@@ -338,9 +342,14 @@ fn liveliness_join_and_leave(b: Backend) {
     let actor = net.open(SenderId::actor(0));
     let actor_token = actor.declare_alive().expect("token");
     let watcher = learner.watch_alive().expect("watch");
-    // Members alive before watching are reported first.
-    expect_event(&watcher, AliveEvent::Joined(learner.member()));
-    expect_event(&watcher, AliveEvent::Joined(actor.member()));
+    // Members alive before watching are reported too.
+    expect_events(
+        &watcher,
+        &[
+            AliveEvent::Joined(learner.member()),
+            AliveEvent::Joined(actor.member()),
+        ],
+    );
     let evaluator = net.open(SenderId::evaluator(0));
     let eval_token = evaluator.declare_alive().expect("token");
     expect_event(&watcher, AliveEvent::Joined(evaluator.member()));

@@ -1,0 +1,60 @@
+//! The imitation warm start, shared by the single-process trainer and the learner process:
+//! ORCA demonstrations (run here: they are cheap), then epochs on Monte-Carlo returns.
+
+use std::sync::atomic::{AtomicBool, Ordering};
+
+use policy::method::RunSpec;
+use policy::rollout::{episode_seed, rollout, Behaviour};
+use sim::Env;
+
+use crate::core::{LearnerCore, LearnerError};
+
+/// Episode-seed stream of the demonstrations.
+pub const DEMO_STREAM: u64 = 0;
+
+/// Progress of the warm start.
+#[derive(Debug, Clone, Copy)]
+pub enum ImitationProgress {
+    Demo { done: u64, total: u64 },
+    Epoch { done: u32, total: u32, loss: f32 },
+}
+
+/// Runs demonstrations and imitation epochs, then switches `core` to RL. Returns `Ok(false)`
+/// if `stop` was raised (nothing is kept: demonstrations are cheap to redo).
+pub fn run(
+    core: &mut LearnerCore,
+    spec: &RunSpec,
+    stop: &AtomicBool,
+    mut progress: impl FnMut(ImitationProgress),
+) -> Result<bool, LearnerError> {
+    let il = &spec.train.imitation;
+    let mut env = Env::new(spec.method_sim(), spec.setting, 0)
+        .map_err(|e| LearnerError::Env(e.to_string()))?;
+    for k in 0..il.episodes {
+        let ep = rollout(
+            &mut env,
+            episode_seed(spec.seed, DEMO_STREAM, k),
+            Behaviour::Orca {
+                safety_space_m: il.safety_space_m,
+            },
+        )?;
+        core.add_episode(&ep, true)?;
+        progress(ImitationProgress::Demo {
+            done: k + 1,
+            total: il.episodes,
+        });
+        if stop.load(Ordering::SeqCst) {
+            return Ok(false);
+        }
+    }
+    let total = il.epochs;
+    core.imitation(total, |epoch, loss| {
+        progress(ImitationProgress::Epoch {
+            done: epoch + 1,
+            total,
+            loss,
+        })
+    })?;
+    core.start_rl()?;
+    Ok(true)
+}
