@@ -61,9 +61,18 @@ pub struct TrainArgs {
     /// Continue the run in --out from its last checkpoint.
     #[arg(long)]
     pub resume: bool,
-    /// Train in this one process (the only mode so far).
+    /// Train in this one process instead of learner + actors + evaluator processes.
     #[arg(long)]
     pub single_process: bool,
+    /// Actor processes (multi-process mode)
+    #[arg(long, default_value_t = 1)]
+    pub actors: u32,
+    /// Data plane of the local run: iceoryx2 (shared memory) or zenoh
+    #[arg(long, default_value = "iceoryx2")]
+    pub transport: String,
+    /// Skip the evaluator process (multi-process mode)
+    #[arg(long)]
+    pub no_evaluator: bool,
 }
 
 #[derive(Serialize)]
@@ -84,7 +93,7 @@ struct MetricsLine<'a> {
     wall_s: f64,
 }
 
-fn resolve(args: &TrainArgs) -> anyhow::Result<Resolved> {
+pub(crate) fn resolve(args: &TrainArgs) -> anyhow::Result<Resolved> {
     let mut file = FileConfig::load(args.config.as_deref())?;
     let mut problems = Vec::new();
     if let Some(m) = &args.method {
@@ -152,6 +161,9 @@ impl PlainProgress {
 }
 
 pub fn run(args: TrainArgs) -> anyhow::Result<()> {
+    if !args.single_process {
+        return crate::launch::run(args);
+    }
     let stop = Arc::new(AtomicBool::new(false));
     {
         let stop = stop.clone();

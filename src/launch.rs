@@ -1,0 +1,354 @@
+//! `fsrl train` (default mode): one command trains locally with separate processes — a learner,
+//! N actors and an evaluator, children of this process — on the iceoryx2 data plane (or zenoh)
+//! with zenoh on loopback for metrics and liveliness. No router, no set-up. Progress comes from
+//! the live metrics; Ctrl-C stops every child cleanly (the learner checkpoints), and the same
+//! command with `--resume` goes on.
+
+use std::fs::File;
+use std::io::Write;
+use std::net::TcpListener;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use anyhow::{bail, Context};
+use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+use proto::{keys, Role, SenderId};
+use transport::{DataPlane, Transport};
+
+use crate::cmd_train::{resolve, TrainArgs};
+
+fn free_port() -> anyhow::Result<u16> {
+    let l = TcpListener::bind("127.0.0.1:0").context("cannot find a free loopback port")?;
+    Ok(l.local_addr()?.port())
+}
+
+struct Children {
+    list: Vec<(String, Child)>,
+}
+
+impl Children {
+    fn signal(&self, sig: i32) {
+        for (_, c) in &self.list {
+            // SAFETY: kill(2) on the pid of a child we spawned and have not reaped.
+            unsafe {
+                libc::kill(c.id() as libc::pid_t, sig);
+            }
+        }
+    }
+}
+
+impl Drop for Children {
+    fn drop(&mut self) {
+        for (_, c) in &mut self.list {
+            if let Ok(None) = c.try_wait() {
+                let _ = c.kill();
+                let _ = c.wait();
+            }
+        }
+    }
+}
+
+fn spawn(exe: &Path, role: &str, args: &[String], logs: &Path) -> anyhow::Result<Child> {
+    let log = File::create(logs.join(format!("{role}.log")))
+        .with_context(|| format!("cannot create {}/{role}.log", logs.display()))?;
+    let mut cmd = Command::new(exe);
+    cmd.args(args)
+        .stdin(Stdio::null())
+        .stdout(log.try_clone()?)
+        .stderr(log);
+    // Children ignore the terminal's Ctrl-C; this process forwards it to them.
+    // SAFETY: setpgid in the child before exec only changes its process group.
+    unsafe {
+        std::os::unix::process::CommandExt::pre_exec(&mut cmd, || {
+            libc::setpgid(0, 0);
+            Ok(())
+        });
+    }
+    cmd.spawn()
+        .with_context(|| format!("cannot start the {role} process"))
+}
+
+pub fn run(args: TrainArgs) -> anyhow::Result<()> {
+    let stop = Arc::new(AtomicBool::new(false));
+    {
+        let stop = stop.clone();
+        ctrlc::set_handler(move || {
+            if stop.swap(true, Ordering::SeqCst) {
+                std::process::exit(130);
+            }
+            eprintln!("\ninterrupted: stopping the learner (it checkpoints), actors and evaluator; Ctrl-C again to quit at once");
+        })
+        .context("cannot install the Ctrl-C handler")?;
+    }
+    let mut problems = Vec::new();
+    let data_plane = match args.transport.as_str() {
+        "iceoryx2" => DataPlane::Iceoryx2,
+        "zenoh" => DataPlane::Zenoh,
+        other => {
+            problems.push(format!(
+                "--transport must be iceoryx2 or zenoh, got `{other}`"
+            ));
+            DataPlane::Zenoh
+        }
+    };
+    if args.actors == 0 {
+        problems.push("--actors must be at least 1".to_string());
+    }
+    let mut resolved = match resolve(&args) {
+        Ok(r) => r,
+        Err(e) => {
+            if problems.is_empty() {
+                return Err(e);
+            }
+            bail!("{e:#}\n  - {}", problems.join("\n  - "));
+        }
+    };
+    if !problems.is_empty() {
+        return Err(sim::ConfigError { problems }.into());
+    }
+    let out = args.out.clone().unwrap_or_else(|| {
+        PathBuf::from("runs").join(format!(
+            "{}-{}-s{}",
+            resolved.method.name().replace('+', "-"),
+            resolved.setting,
+            resolved.file.run.seed
+        ))
+    });
+    let ckpt = out.join("checkpoints").join("latest.ckpt");
+    if ckpt.exists() && !args.resume {
+        bail!(
+            "{} already holds a run (checkpoint {}); pass --resume to continue it or --out to start another",
+            out.display(),
+            ckpt.display()
+        );
+    }
+    if args.resume && !ckpt.exists() {
+        bail!("--resume: no checkpoint at {}", ckpt.display());
+    }
+    let logs = out.join("logs");
+    std::fs::create_dir_all(&logs).with_context(|| format!("cannot create {}", logs.display()))?;
+
+    // The run's config: loopback endpoints, the learner listening on a free port.
+    let port = free_port()?;
+    let learner_ep = format!("tcp/127.0.0.1:{port}");
+    let f = &mut resolved.file;
+    f.run.id = out
+        .file_name()
+        .map(|n| {
+            n.to_string_lossy()
+                .chars()
+                .map(|c| {
+                    if c.is_ascii_alphanumeric() || c == '-' || c == '_' {
+                        c
+                    } else {
+                        '_'
+                    }
+                })
+                .collect()
+        })
+        .unwrap_or_else(|| "local".to_string());
+    f.transport.data_plane = data_plane;
+    f.transport.zenoh.multicast_scouting = false;
+    f.transport.zenoh.connect = Vec::new();
+    f.transport.zenoh.listen = vec!["tcp/127.0.0.1:0".into()];
+    f.learner.run_dir = Some(out.clone());
+    f.evaluator.out_dir = Some(out.clone());
+    f.evaluator.threads = 1;
+    if let Some(n) = args.eval_episodes {
+        f.evaluator.episodes_per_setting = n;
+    }
+    let cfg_path = out.join("config.toml");
+    std::fs::write(&cfg_path, toml::to_string(&resolved.file)?)
+        .with_context(|| format!("cannot write {}", cfg_path.display()))?;
+    let exe = std::env::current_exe().context("cannot find the fsrl executable")?;
+    let cfg_arg = cfg_path.to_string_lossy().to_string();
+    let mut children = Children { list: Vec::new() };
+    // The learner listens on the known port; every other process connects to it.
+    let learner_args = vec![
+        "learner".to_string(),
+        "--config".into(),
+        cfg_arg.clone(),
+        "--listen".into(),
+        learner_ep.clone(),
+    ];
+    children.list.push((
+        "learner".into(),
+        spawn(&exe, "learner", &learner_args, &logs)?,
+    ));
+    for id in 0..args.actors {
+        let a = vec![
+            "actor".to_string(),
+            "--config".into(),
+            cfg_arg.clone(),
+            "--id".into(),
+            id.to_string(),
+            "--connect".into(),
+            learner_ep.clone(),
+        ];
+        children.list.push((
+            format!("actor-{id}"),
+            spawn(&exe, &format!("actor-{id}"), &a, &logs)?,
+        ));
+    }
+    if !args.no_evaluator {
+        let e = vec![
+            "evaluator".to_string(),
+            "--config".into(),
+            cfg_arg.clone(),
+            "--every".into(),
+            "0".into(),
+            "--connect".into(),
+            learner_ep.clone(),
+        ];
+        children
+            .list
+            .push(("evaluator".into(), spawn(&exe, "evaluator", &e, &logs)?));
+    }
+    eprintln!(
+        "training {} on {} in {} with {} actor process(es) over {} (learner at {learner_ep}); logs in {}",
+        resolved.method,
+        resolved.setting,
+        out.display(),
+        args.actors,
+        args.transport,
+        logs.display()
+    );
+
+    // Watch the run's metrics like any other tool would.
+    let mut tcfg = resolved
+        .file
+        .transport
+        .for_sender(&resolved.file.run.id, SenderId::new(Role::Monitor, 0))?;
+    tcfg.data_plane = DataPlane::Zenoh;
+    tcfg.zenoh.connect = vec![learner_ep.clone()];
+    let monitor = Transport::open(tcfg)?;
+    let metrics = monitor.subscriber(&keys::all_metrics(monitor.run()))?;
+    let mut log = std::fs::OpenOptions::new()
+        .create(true)
+        .append(true)
+        .open(out.join("metrics.jsonl"))
+        .context("cannot open metrics.jsonl")?;
+    let total = resolved.file.train.rl.episodes;
+    let bar = ProgressBar::with_draw_target(Some(total), ProgressDrawTarget::stderr_with_hz(4));
+    bar.set_style(
+        ProgressStyle::with_template(
+            "{prefix:>9} [{elapsed_precise}] {bar:30} {pos}/{len} (ETA {eta}) {msg}",
+        )
+        .expect("template"),
+    );
+    bar.set_prefix("starting");
+    let mut last_plain = Instant::now();
+    let learner_exit = loop {
+        if stop.load(Ordering::SeqCst) {
+            children.signal(libc::SIGINT);
+        }
+        let (_, learner) = &mut children.list[0];
+        if let Some(status) = learner.try_wait()? {
+            break status;
+        }
+        if let Some(msg) = metrics.recv_timeout(Duration::from_millis(200))? {
+            if msg.header.sender.role != Role::Learner {
+                continue;
+            }
+            let v = &msg.body.values;
+            let get = |k: &str| v.get(k).copied().unwrap_or(0.0);
+            let line = serde_json::json!({"wall_s": msg.body.wall_time_s, "env_steps": msg.body.env_steps, "values": v});
+            let _ = writeln!(log, "{line}");
+            if get("imitation_done") < 0.5 && v.contains_key("demo_target") {
+                bar.set_prefix("demos");
+                bar.set_message(format!("{}/{}", get("demo_episodes"), get("demo_target")));
+            } else if v.contains_key("imitation_epoch") {
+                bar.set_prefix("imitation");
+                bar.set_message(format!(
+                    "epoch {}/{} loss {:.5}",
+                    get("imitation_epoch"),
+                    get("imitation_epochs"),
+                    get("loss")
+                ));
+            } else if v.contains_key("episodes") && get("imitation_done") > 0.5 {
+                bar.set_prefix("rl");
+                bar.set_position(get("episodes") as u64);
+                bar.set_message(format!(
+                    "ε {:.3} success {:.2} loss {:.5} {:.2} ep/s actors {} lag {:.1}",
+                    get("epsilon"),
+                    get("success_rate"),
+                    get("loss"),
+                    get("episodes_per_s"),
+                    get("actors_alive"),
+                    get("policy_lag_mean")
+                ));
+            }
+            if bar.is_hidden() && last_plain.elapsed() >= Duration::from_secs(10) {
+                last_plain = Instant::now();
+                eprintln!(
+                    "{} {}/{} {}",
+                    bar.prefix(),
+                    bar.position(),
+                    total,
+                    bar.message()
+                );
+            }
+        }
+    };
+    bar.finish_and_clear();
+    // The learner is done: actors and the evaluator finish on their own (the evaluator after the
+    // final evaluation); after a stop, they are told to stop too.
+    let interrupted = stop.load(Ordering::SeqCst) || !learner_exit.success();
+    if interrupted {
+        children.signal(libc::SIGINT);
+    }
+    let mut failed = Vec::new();
+    if !learner_exit.success() {
+        failed.push(format!("learner ({learner_exit})"));
+    }
+    for (name, child) in children.list.iter_mut().skip(1) {
+        let deadline = Instant::now() + Duration::from_secs(if interrupted { 20 } else { 3600 });
+        loop {
+            if let Some(s) = child.try_wait()? {
+                if !s.success() && !interrupted {
+                    failed.push(format!("{name} ({s})"));
+                }
+                break;
+            }
+            if Instant::now() > deadline {
+                let _ = child.kill();
+                let _ = child.wait();
+                failed.push(format!("{name} (did not exit; killed)"));
+                break;
+            }
+            if stop.load(Ordering::SeqCst) {
+                // SAFETY: signalling our own child.
+                unsafe {
+                    libc::kill(child.id() as libc::pid_t, libc::SIGINT);
+                }
+            }
+            std::thread::sleep(Duration::from_millis(100));
+        }
+    }
+    if !failed.is_empty() {
+        bail!(
+            "processes failed: {} (see {})",
+            failed.join(", "),
+            logs.display()
+        );
+    }
+    if interrupted {
+        eprintln!(
+            "stopped; the learner checkpointed in {}. Continue with the same command and --resume",
+            out.display()
+        );
+        return Ok(());
+    }
+    let report = out.join("report.md");
+    if let Ok(md) = std::fs::read_to_string(&report) {
+        println!("{md}");
+    }
+    println!(
+        "run directory: {} (config.toml, checkpoints/, metrics.jsonl, report.md, logs/)",
+        out.display()
+    );
+    Ok(())
+}
