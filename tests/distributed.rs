@@ -1,0 +1,395 @@
+//! Multi-process tests: the real `fsrl` binary as learner, actors and evaluator, over zenoh and
+//! over iceoryx2. Readiness comes from liveliness and live metrics (a monitor transport in the
+//! test), never from sleeping.
+
+use std::collections::BTreeMap;
+use std::net::TcpListener;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+use proto::{keys, Metrics, Role, RunId, SenderId};
+use transport::{DataPlane, Subscriber, Transport, TransportConfig, ZenohConfig};
+
+const TIMEOUT: Duration = Duration::from_secs(180);
+
+fn free_port() -> u16 {
+    TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port()
+}
+
+/// Child processes killed when the test ends, whatever happens.
+struct Procs(Vec<Child>);
+
+impl Drop for Procs {
+    fn drop(&mut self) {
+        for c in &mut self.0 {
+            let _ = c.kill();
+            let _ = c.wait();
+        }
+    }
+}
+
+struct Run {
+    id: String,
+    dir: tempfile::TempDir,
+    port: u16,
+    plane: &'static str,
+    extra_config: String,
+}
+
+impl Run {
+    fn new(tag: &str, plane: &'static str, extra_config: &str) -> Self {
+        let id = format!("t{}-{tag}-{}", std::process::id(), free_port());
+        Self {
+            id,
+            dir: tempfile::tempdir().unwrap(),
+            port: free_port(),
+            plane,
+            extra_config: extra_config.to_string(),
+        }
+    }
+
+    fn endpoint(&self) -> String {
+        format!("tcp/127.0.0.1:{}", self.port)
+    }
+
+    fn config(&self) -> PathBuf {
+        let p = self.dir.path().join("run.toml");
+        if !p.exists() {
+            std::fs::write(
+                &p,
+                format!(
+                    "[run]\nid = \"{}\"\nmethod = \"sarl\"\nsetting = \"env2-visible\"\n[train.imitation]\nepisodes = 6\nepochs = 1\n[learner]\nmetrics_interval_ms = 200\nlinger_ms = 2000\n{}",
+                    self.id, self.extra_config
+                ),
+            )
+            .unwrap();
+        }
+        p
+    }
+
+    fn spawn(&self, role: &str, extra: &[&str]) -> Child {
+        let log = std::fs::File::create(
+            self.dir
+                .path()
+                .join(format!("{role}-{}.log", extra.join("_").replace('/', ""))),
+        )
+        .unwrap();
+        let mut c = Command::new(env!("CARGO_BIN_EXE_fsrl"));
+        c.arg(role)
+            .arg("--config")
+            .arg(self.config())
+            .args(["--data-plane", self.plane, "--run-dir"])
+            .arg(self.dir.path().join("run"));
+        if role == "learner" {
+            c.args(["--listen", &self.endpoint()]);
+        } else {
+            c.args(["--listen", "tcp/127.0.0.1:0", "--connect", &self.endpoint()]);
+        }
+        c.args(extra)
+            .stdin(Stdio::null())
+            .stdout(log.try_clone().unwrap())
+            .stderr(log)
+            .spawn()
+            .unwrap()
+    }
+
+    fn monitor(&self, index: u32) -> Transport {
+        let mut cfg = TransportConfig::new(
+            RunId::new(self.id.clone()).unwrap(),
+            SenderId::new(Role::Monitor, index),
+        );
+        cfg.zenoh = ZenohConfig::peer(vec!["tcp/127.0.0.1:0".into()], vec![self.endpoint()]);
+        cfg.data_plane = if self.plane == "iceoryx2" {
+            DataPlane::Iceoryx2
+        } else {
+            DataPlane::Zenoh
+        };
+        Transport::open(cfg).unwrap()
+    }
+
+    fn logs(&self) -> String {
+        let mut s = String::new();
+        for e in std::fs::read_dir(self.dir.path()).unwrap().flatten() {
+            if e.path().extension().is_some_and(|x| x == "log") {
+                s += &format!(
+                    "--- {}\n{}\n",
+                    e.path().display(),
+                    std::fs::read_to_string(e.path()).unwrap_or_default()
+                );
+            }
+        }
+        s
+    }
+
+    fn run_dir(&self) -> PathBuf {
+        self.dir.path().join("run")
+    }
+}
+
+/// The latest metrics of each sender, updated from the subscription.
+struct Watch {
+    sub: Subscriber<Metrics>,
+    latest: BTreeMap<SenderId, Metrics>,
+}
+
+impl Watch {
+    fn new(t: &Transport) -> Self {
+        Self {
+            sub: t.subscriber(&keys::all_metrics(t.run())).unwrap(),
+            latest: BTreeMap::new(),
+        }
+    }
+
+    fn value(&self, sender: SenderId, key: &str) -> Option<f64> {
+        self.latest.get(&sender)?.values.get(key).copied()
+    }
+
+    /// Waits until `pred` holds on the latest metrics.
+    fn until(&mut self, what: &str, run: &Run, mut pred: impl FnMut(&Self) -> bool) {
+        let deadline = Instant::now() + TIMEOUT;
+        while !pred(self) {
+            assert!(
+                Instant::now() < deadline,
+                "timed out waiting for {what}\n{}",
+                run.logs()
+            );
+            if let Some(m) = self.sub.recv_timeout(Duration::from_millis(200)).unwrap() {
+                self.latest.insert(m.header.sender, m.body);
+            }
+        }
+    }
+}
+
+const LEARNER: SenderId = SenderId::new(Role::Learner, 0);
+
+fn wait_exit(c: &mut Child, what: &str, run: &Run) -> std::process::ExitStatus {
+    let deadline = Instant::now() + TIMEOUT;
+    loop {
+        if let Some(s) = c.try_wait().unwrap() {
+            return s;
+        }
+        assert!(
+            Instant::now() < deadline,
+            "{what} did not exit\n{}",
+            run.logs()
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}
+
+fn two_process_run(plane: &'static str) {
+    let run = Run::new("two", plane, "");
+    let mut procs = Procs(vec![run.spawn("learner", &["--rl-episodes", "4"])]);
+    procs
+        .0
+        .push(run.spawn("actor", &["--rl-episodes", "4", "--id", "0"]));
+    let mon = run.monitor(0);
+    let weights = mon.latest_subscriber(&keys::weights(mon.run())).unwrap();
+    let mut versions = std::collections::BTreeSet::new();
+    let deadline = Instant::now() + TIMEOUT;
+    while versions.len() < 2 {
+        assert!(
+            Instant::now() < deadline,
+            "fewer than 2 weight versions seen\n{}",
+            run.logs()
+        );
+        if let Some(w) = weights.next(Duration::from_millis(200)).unwrap() {
+            assert_eq!(w.body.version, w.header.policy_version);
+            assert_eq!(w.body.params.len(), 96_502);
+            versions.insert(w.body.version);
+        }
+    }
+    let status = wait_exit(&mut procs.0[0], "the learner", &run);
+    assert!(status.success(), "learner failed\n{}", run.logs());
+    let status = wait_exit(&mut procs.0[1], "the actor", &run);
+    assert!(status.success(), "actor failed\n{}", run.logs());
+    let loaded = learner::checkpoint::load(&run.run_dir().join("checkpoints/latest.ckpt")).unwrap();
+    assert_eq!(loaded.core.counters().rl_episodes, 4);
+    assert_eq!(loaded.run.accepted_below.get(&0).copied(), Some(4));
+    println!("{plane}: weight versions seen {versions:?}");
+}
+
+#[test]
+fn learner_and_actor_train_over_zenoh() {
+    two_process_run("zenoh");
+}
+
+#[test]
+fn learner_and_actor_train_over_iceoryx2_and_clean_up_shared_memory() {
+    let before: Vec<String> = shm_entries();
+    two_process_run("iceoryx2");
+    let leaked: Vec<String> = shm_entries()
+        .into_iter()
+        .filter(|e| !before.contains(e) && e.contains("fsrl"))
+        .collect();
+    assert!(leaked.is_empty(), "shared memory left behind: {leaked:?}");
+}
+
+fn shm_entries() -> Vec<String> {
+    std::fs::read_dir("/dev/shm")
+        .map(|d| {
+            d.flatten()
+                .map(|e| e.file_name().to_string_lossy().into_owned())
+                .collect()
+        })
+        .unwrap_or_default()
+}
+
+#[test]
+fn a_killed_actor_is_noticed_and_a_new_one_joins() {
+    let run = Run::new("kill-actor", "zenoh", "");
+    let mut procs = Procs(vec![run.spawn("learner", &["--rl-episodes", "100000"])]);
+    procs.0.push(run.spawn("actor", &["--id", "0"]));
+    let mon = run.monitor(1);
+    let mut w = Watch::new(&mon);
+    w.until("two episodes from actor 0", &run, |w| {
+        w.value(LEARNER, "episodes").unwrap_or(0.0) >= 2.0
+    });
+    procs.0[1].kill().unwrap();
+    procs.0[1].wait().unwrap();
+    w.until("the learner to see the actor leave", &run, |w| {
+        w.value(LEARNER, "actors_alive") == Some(0.0)
+    });
+    let before = w.value(LEARNER, "episodes").unwrap();
+    procs.0.push(run.spawn("actor", &["--id", "1"]));
+    w.until("episodes from the new actor", &run, |w| {
+        w.value(LEARNER, "actors_alive") == Some(1.0)
+            && w.value(LEARNER, "episodes").unwrap_or(0.0) >= before + 2.0
+    });
+    assert!(
+        procs.0[0].try_wait().unwrap().is_none(),
+        "the learner must go on\n{}",
+        run.logs()
+    );
+}
+
+#[test]
+fn a_killed_learner_restarts_from_its_checkpoint_and_loses_no_acknowledged_episode() {
+    // No periodic checkpoint: every RL episode lives only in the write-ahead log.
+    let run = Run::new(
+        "kill-learner",
+        "zenoh",
+        "[train]\ncheckpoint_every_episodes = 0\n",
+    );
+    let mut procs = Procs(vec![run.spawn("learner", &["--rl-episodes", "100000"])]);
+    procs.0.push(run.spawn("actor", &["--id", "0"]));
+    let mon = run.monitor(2);
+    let mut w = Watch::new(&mon);
+    let actor = SenderId::new(Role::Actor, 0);
+    w.until("three acknowledged episodes", &run, |w| {
+        w.value(actor, "episodes_acked").unwrap_or(0.0) >= 3.0
+    });
+    procs.0[0].kill().unwrap();
+    procs.0[0].wait().unwrap();
+    // The actor's count is final once it sees no learner: wait for two fresh reports that agree.
+    let mut last = -1.0;
+    w.until("the actor's final acknowledged count", &run, |w| {
+        let v = w.value(actor, "episodes_acked").unwrap_or(-2.0);
+        let stable = v == last;
+        last = v;
+        stable
+    });
+    let acked = last;
+    w.latest.remove(&LEARNER);
+    procs.0[0] = run.spawn("learner", &["--rl-episodes", "100000"]);
+    w.until("the restarted learner's first report", &run, |w| {
+        w.value(LEARNER, "episodes").is_some()
+    });
+    let restored = w.value(LEARNER, "episodes").unwrap();
+    println!("acknowledged before the kill: {acked}; episodes after restart: {restored}");
+    assert!(
+        restored >= acked,
+        "acknowledged episodes lost: {acked} acked, {restored} restored\n{}",
+        run.logs()
+    );
+    // And the actor resumes feeding the new learner.
+    w.until("training to go on", &run, |w| {
+        w.value(LEARNER, "episodes").unwrap_or(0.0) >= restored + 2.0
+    });
+}
+
+#[test]
+fn garbage_on_the_transitions_key_is_rejected_and_counted() {
+    let run = Run::new("garbage", "zenoh", "");
+    let mut procs = Procs(vec![run.spawn("learner", &["--rl-episodes", "100000"])]);
+    procs.0.push(run.spawn("actor", &["--id", "0"]));
+    let mon = run.monitor(3);
+    let mut w = Watch::new(&mon);
+    w.until("training", &run, |w| {
+        w.value(LEARNER, "episodes").unwrap_or(0.0) >= 1.0
+    });
+    let evil = mon.publisher(&keys::transitions(mon.run(), 7)).unwrap();
+    for k in 0..20u8 {
+        evil.publish_raw(vec![0x93, k, 0xff, 0x00, 0x12, k.wrapping_mul(31)])
+            .unwrap();
+    }
+    let before = w.value(LEARNER, "episodes").unwrap();
+    w.until("the garbage to be counted", &run, |w| {
+        w.value(LEARNER, "rejected_messages").unwrap_or(0.0) >= 1.0
+    });
+    w.until("training to go on", &run, |w| {
+        w.value(LEARNER, "episodes").unwrap_or(0.0) >= before + 2.0
+    });
+    assert!(procs.0[0].try_wait().unwrap().is_none());
+}
+
+#[test]
+fn the_evaluator_reports_a_checkpoint_on_all_six_settings() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("run");
+    let o = Command::new(env!("CARGO_BIN_EXE_fsrl"))
+        .args([
+            "train",
+            "--single-process",
+            "--method",
+            "fsrl",
+            "--il-episodes",
+            "5",
+            "--il-epochs",
+            "1",
+        ])
+        .args(["--rl-episodes", "1", "--eval-episodes", "2", "--out"])
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let eval = dir.path().join("eval");
+    let o = Command::new(env!("CARGO_BIN_EXE_fsrl"))
+        .args(["evaluator", "--episodes", "3", "--checkpoint"])
+        .arg(out.join("checkpoints/latest.ckpt"))
+        .arg("--out-dir")
+        .arg(&eval)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let r: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(eval.join("report.json")).unwrap()).unwrap();
+    let names: Vec<&str> = r["settings"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|s| s["setting"].as_str().unwrap())
+        .collect();
+    assert_eq!(
+        names,
+        [
+            "env1-invisible",
+            "env2-invisible",
+            "env3-invisible",
+            "env1-visible",
+            "env2-visible",
+            "env3-visible"
+        ]
+    );
+    for s in r["settings"].as_array().unwrap() {
+        assert_eq!(s["episodes"], 3);
+    }
+    let md = std::fs::read_to_string(eval.join("report.md")).unwrap();
+    assert!(md.contains("| average visible |"), "{md}");
+    let _ = Path::new(&eval);
+}
