@@ -1,9 +1,11 @@
 //! `fsrl`: one command for simulating, training, evaluating and watching crowd-navigation
 //! policies. The binary is thin: parse arguments, install logging, run a subcommand.
 
+mod cmd_check;
 mod cmd_roles;
 mod cmd_sim;
 mod cmd_train;
+mod cmd_watch;
 mod config;
 mod launch;
 mod report;
@@ -36,6 +38,10 @@ enum Command {
     Actor(cmd_roles::ActorArgs),
     /// The evaluator process of a distributed run, or `--checkpoint FILE` offline.
     Evaluator(cmd_roles::EvaluatorArgs),
+    /// Show a run's live metrics.
+    Watch(cmd_watch::WatchArgs),
+    /// Parse and validate run configuration files.
+    CheckConfig(cmd_check::CheckArgs),
 }
 
 fn main() -> ExitCode {
@@ -55,6 +61,8 @@ fn main() -> ExitCode {
         Command::Learner(args) => cmd_roles::learner(args),
         Command::Actor(args) => cmd_roles::actor(args),
         Command::Evaluator(args) => cmd_roles::evaluator(args),
+        Command::Watch(args) => cmd_watch::run(args),
+        Command::CheckConfig(args) => cmd_check::run(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -393,3 +393,77 @@ fn the_evaluator_reports_a_checkpoint_on_all_six_settings() {
     assert!(md.contains("| average visible |"), "{md}");
     let _ = Path::new(&eval);
 }
+
+#[test]
+fn live_metrics_are_readable_by_fsrl_watch_and_by_python() {
+    let run = Run::new("watch", "zenoh", "");
+    let mut procs = Procs(vec![run.spawn("learner", &["--rl-episodes", "100000"])]);
+    procs.0.push(run.spawn("actor", &["--id", "0"]));
+    let mon = run.monitor(4);
+    let mut w = Watch::new(&mon);
+    w.until("training", &run, |w| {
+        w.value(LEARNER, "episodes").unwrap_or(0.0) >= 1.0
+    });
+
+    let o = Command::new(env!("CARGO_BIN_EXE_fsrl"))
+        .args([
+            "watch",
+            "--connect",
+            &run.endpoint(),
+            "--run",
+            &run.id,
+            "--count",
+            "3",
+            "--timeout-s",
+            "60",
+        ])
+        .output()
+        .unwrap();
+    let out = String::from_utf8_lossy(&o.stdout);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(
+        out.lines().count() >= 3 && out.contains("episodes="),
+        "{out}"
+    );
+
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tools/watch_metrics.py");
+    let o = Command::new("python3")
+        .arg(&script)
+        .args([
+            "--connect",
+            &run.endpoint(),
+            "--run",
+            &run.id,
+            "--count",
+            "4",
+            "--timeout",
+            "60",
+        ])
+        .output()
+        .unwrap();
+    let out = String::from_utf8_lossy(&o.stdout);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        o.status.success(),
+        "python watcher failed ({}):\n{out}\n{err}",
+        o.status
+    );
+    let learner_line = out
+        .lines()
+        .find(|l| l.starts_with("learner-0"))
+        .unwrap_or_else(|| panic!("no learner metrics in\n{out}"));
+    for field in [
+        "episodes=",
+        "loss=",
+        "success_rate=",
+        "policy_lag_mean=",
+        "replay_size=",
+        "rejected_messages=",
+        "actors_alive=",
+    ] {
+        assert!(
+            learner_line.contains(field),
+            "missing {field} in {learner_line}"
+        );
+    }
+}

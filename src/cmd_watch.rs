@@ -1,0 +1,69 @@
+//! `fsrl watch`: live metrics of a run from another terminal (any tool can do the same: the
+//! messages are MessagePack with field names under `fsrl/<run>/metrics/**`).
+
+use std::time::{Duration, Instant};
+
+use proto::{keys, Role, RunId, SenderId};
+use transport::{Transport, TransportConfig, ZenohConfig};
+
+#[derive(Debug, clap::Args)]
+pub struct WatchArgs {
+    /// zenoh endpoint of a process of the run (the learner) or a router (repeatable)
+    #[arg(long, required = true)]
+    pub connect: Vec<String>,
+    /// Run id
+    #[arg(long, default_value = "local")]
+    pub run: String,
+    /// Stop after this many messages (0: until Ctrl-C)
+    #[arg(long, default_value_t = 0)]
+    pub count: u64,
+    /// Stop after this many seconds (0: never)
+    #[arg(long, default_value_t = 0.0)]
+    pub timeout_s: f64,
+}
+
+pub fn run(args: WatchArgs) -> anyhow::Result<()> {
+    let run =
+        RunId::new(args.run.clone()).map_err(|e| anyhow::anyhow!("--run `{}`: {e}", args.run))?;
+    let mut cfg = TransportConfig::new(run, SenderId::new(Role::Monitor, std::process::id()));
+    cfg.zenoh = ZenohConfig::peer(vec!["tcp/127.0.0.1:0".into()], args.connect.clone());
+    let t = Transport::open(cfg)?;
+    let sub = t.subscriber(&keys::all_metrics(t.run()))?;
+    let start = Instant::now();
+    let mut seen = 0u64;
+    let mut quiet_warned = false;
+    loop {
+        if args.timeout_s > 0.0 && start.elapsed().as_secs_f64() > args.timeout_s {
+            return Ok(());
+        }
+        match sub.recv_timeout(Duration::from_millis(500))? {
+            Some(m) => {
+                let vals: Vec<String> = m
+                    .body
+                    .values
+                    .iter()
+                    .map(|(k, v)| format!("{k}={v:.4}"))
+                    .collect();
+                println!(
+                    "{} episodes={} env_steps={} {}",
+                    m.header.sender,
+                    m.body.episodes,
+                    m.body.env_steps,
+                    vals.join(" ")
+                );
+                seen += 1;
+                if args.count > 0 && seen >= args.count {
+                    return Ok(());
+                }
+            }
+            None if !quiet_warned && start.elapsed() > Duration::from_secs(5) && seen == 0 => {
+                eprintln!(
+                    "no metrics yet from run `{}` via {:?}; still listening",
+                    args.run, args.connect
+                );
+                quiet_warned = true;
+            }
+            None => {}
+        }
+    }
+}
