@@ -411,11 +411,8 @@ fn rebuild(pl: Payload) -> Result<Loaded, String> {
         counters,
         pl.sim.dt_s,
     );
-    if counters.imitation_done {
-        // Cached targets are not stored: they follow from the target network.
-        core.refresh_targets(0..core.replay().len())
-            .map_err(|e| e.to_string())?;
-    }
+    // Cached targets are not stored: they follow from the target network, before the next update.
+    core.invalidate_targets();
     Ok(Loaded {
         core,
         sim: pl.sim,

@@ -68,6 +68,8 @@ pub struct LearnerCore {
     batch: Batch,
     target_buf: Vec<f32>,
     target_scratch: policy::Scratch,
+    /// The cached targets predate the target network (refreshed before the next update).
+    targets_stale: bool,
 }
 
 impl LearnerCore {
@@ -127,6 +129,7 @@ impl LearnerCore {
             batch: Batch::default(),
             target_buf: Vec::new(),
             target_scratch: policy::Scratch::default(),
+            targets_stale: true,
         }
     }
 
@@ -286,7 +289,7 @@ impl LearnerCore {
             });
             first_slot.get_or_insert(slot);
         }
-        if self.counters.imitation_done {
+        if self.counters.imitation_done && !self.targets_stale {
             // New transitions get their targets from the current target network.
             let first = first_slot.expect("an episode has at least one step");
             let cap = self.replay.capacity();
@@ -359,7 +362,13 @@ impl LearnerCore {
             AdamConfig::with_lr(self.train.rl.learning_rate as f32),
         );
         self.counters.imitation_done = true;
-        self.refresh_targets(0..self.replay.len())
+        self.targets_stale = true;
+        Ok(())
+    }
+
+    /// Marks every cached target out of date (the target network changed or was loaded).
+    pub(crate) fn invalidate_targets(&mut self) {
+        self.targets_stale = true;
     }
 
     /// Recomputes the cached V-learning targets y = r + discount·V_target(s') of slots `range`.
@@ -399,6 +408,10 @@ impl LearnerCore {
         if !self.counters.imitation_done {
             return Err(LearnerError::Phase("train_rl before start_rl"));
         }
+        if batches > 0 && self.targets_stale {
+            self.refresh_targets(0..self.replay.len())?;
+            self.targets_stale = false;
+        }
         let bs = self.train.rl.batch_size;
         let (mut sum, mut n) = (0f64, 0u32);
         for _ in 0..batches {
@@ -419,7 +432,7 @@ impl LearnerCore {
             .is_multiple_of(self.train.rl.target_update_episodes)
         {
             self.trainer.sync_target();
-            self.refresh_targets(0..self.replay.len())?;
+            self.targets_stale = true;
         }
         Ok(if n == 0 {
             f32::NAN

@@ -6,8 +6,9 @@ use rand::Rng;
 use policy::FEATURE_DIM;
 
 /// Transitions of a fixed shape (`humans` rows of 13 features per state), oldest overwritten
-/// first once `capacity` is reached.
-#[derive(Debug, Clone, PartialEq)]
+/// first once `capacity` is reached. Equality compares the stored transitions, not the cached
+/// targets (a cache of the target network's values).
+#[derive(Debug, Clone)]
 pub struct Replay {
     capacity: usize,
     humans: usize,
@@ -32,6 +33,20 @@ pub struct Transition<'a> {
     pub reward: f32,
     pub discount: f32,
     pub mc_return: f32,
+}
+
+impl PartialEq for Replay {
+    fn eq(&self, o: &Self) -> bool {
+        self.capacity == o.capacity
+            && self.humans == o.humans
+            && self.len == o.len
+            && self.next == o.next
+            && self.states == o.states
+            && self.next_states == o.next_states
+            && self.rewards == o.rewards
+            && self.discounts == o.discounts
+            && self.returns == o.returns
+    }
 }
 
 /// The raw columns of a memory (borrowed for saving, owned for restoring).

@@ -1,0 +1,122 @@
+//! Actor scaling: 1, 2 and 4 actor processes against one learner with updates off
+//! (`train.rl.batches_per_episode = 0`), iceoryx2 data plane. Prints episodes/s per
+//! configuration and the ratios to one actor, all measured in this one run.
+//!
+//! `cargo bench -p fsrl --bench scaling`
+
+use std::net::TcpListener;
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+use proto::{keys, Role, RunId, SenderId};
+use transport::{Transport, TransportConfig, ZenohConfig};
+
+const MEASURE: Duration = Duration::from_secs(20);
+
+struct Procs(Vec<Child>);
+impl Drop for Procs {
+    fn drop(&mut self) {
+        for c in &mut self.0 {
+            let _ = c.kill();
+            let _ = c.wait();
+        }
+    }
+}
+
+fn episodes_per_s(actors: u32) -> f64 {
+    let port = TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port();
+    let ep = format!("tcp/127.0.0.1:{port}");
+    let dir = tempfile::tempdir().unwrap();
+    let id = format!("scale{actors}-{}", std::process::id());
+    let cfg = dir.path().join("run.toml");
+    std::fs::write(
+        &cfg,
+        format!(
+            "[run]\nid = \"{id}\"\nmethod = \"sarl\"\nsetting = \"env1-invisible\"\n[transport]\ndata_plane = \"iceoryx2\"\n\
+             [train.imitation]\nepisodes = 5\nepochs = 1\n[train.rl]\nepisodes = 1000000\nbatches_per_episode = 0\n\
+             [learner]\nin_flight_per_actor = 8\nmetrics_interval_ms = 250\n"
+        ),
+    )
+    .unwrap();
+    let bin = env!("CARGO_BIN_EXE_fsrl");
+    let spawn = |args: &[&str]| {
+        Command::new(bin)
+            .args(args)
+            .arg("--config")
+            .arg(&cfg)
+            .arg("--run-dir")
+            .arg(dir.path().join("run"))
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap()
+    };
+    let mut procs = Procs(vec![spawn(&["learner", "--listen", &ep])]);
+    for k in 0..actors {
+        procs.0.push(spawn(&[
+            "actor",
+            "--id",
+            &k.to_string(),
+            "--listen",
+            "tcp/127.0.0.1:0",
+            "--connect",
+            &ep,
+        ]));
+    }
+    let mut tc = TransportConfig::new(RunId::new(id).unwrap(), SenderId::new(Role::Monitor, 0));
+    tc.zenoh = ZenohConfig::peer(vec!["tcp/127.0.0.1:0".into()], vec![ep]);
+    let t = Transport::open(tc).unwrap();
+    let sub = t.subscriber(&keys::all_metrics(t.run())).unwrap();
+    let read = || -> Option<(Instant, f64, f64)> {
+        let m = sub.recv_timeout(Duration::from_secs(1)).unwrap()?;
+        if m.header.sender.role != Role::Learner {
+            return None;
+        }
+        let v = &m.body.values;
+        Some((
+            Instant::now(),
+            *v.get("episodes")?,
+            *v.get("actors_alive").unwrap_or(&0.0),
+        ))
+    };
+    // Warm up: every actor connected and a few episodes done.
+    let deadline = Instant::now() + Duration::from_secs(120);
+    let (t0, e0) = loop {
+        assert!(Instant::now() < deadline, "the run did not start");
+        if let Some((t, e, alive)) = read() {
+            if alive as u32 == actors && e >= 4.0 * actors as f64 {
+                break (t, e);
+            }
+        }
+    };
+    let mut last = (t0, e0);
+    while last.0.duration_since(t0) < MEASURE {
+        if let Some((t, e, _)) = read() {
+            last = (t, e);
+        }
+    }
+    (last.1 - e0) / last.0.duration_since(t0).as_secs_f64()
+}
+
+fn main() {
+    if std::env::args().any(|a| a == "--list") {
+        return;
+    }
+    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+    let mut rows = Vec::new();
+    for actors in [1, 2, 4] {
+        let r = episodes_per_s(actors);
+        println!("{actors} actor(s): {r:.2} episodes/s");
+        rows.push((actors, r));
+    }
+    let base = rows[0].1;
+    println!("\n== actor scaling, learner updates off, iceoryx2, {cores} cores ==");
+    println!("| actors | episodes/s | vs 1 actor |\n|---|---|---|");
+    for (a, r) in &rows {
+        println!("| {a} | {r:.2} | {:.2}x |", r / base);
+    }
+}
