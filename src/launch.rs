@@ -20,7 +20,11 @@ use transport::{DataPlane, Transport};
 
 use crate::cmd_train::{resolve, TrainArgs};
 
-fn free_port() -> anyhow::Result<u16> {
+/// zenoh's usual port when it is free, else any free loopback port.
+fn learner_port() -> anyhow::Result<u16> {
+    if TcpListener::bind("127.0.0.1:7447").is_ok() {
+        return Ok(7447);
+    }
     let l = TcpListener::bind("127.0.0.1:0").context("cannot find a free loopback port")?;
     Ok(l.local_addr()?.port())
 }
@@ -132,7 +136,7 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
     std::fs::create_dir_all(&logs).with_context(|| format!("cannot create {}", logs.display()))?;
 
     // The run's config: loopback endpoints, the learner listening on a free port.
-    let port = free_port()?;
+    let port = learner_port()?;
     let learner_ep = format!("tcp/127.0.0.1:{port}");
     let f = &mut resolved.file;
     f.run.id = out
@@ -215,6 +219,10 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
         args.actors,
         args.transport,
         logs.display()
+    );
+    eprintln!(
+        "live metrics from another terminal: fsrl watch --connect {learner_ep} --run {}",
+        resolved.file.run.id
     );
 
     // Watch the run's metrics like any other tool would.

@@ -467,3 +467,82 @@ fn live_metrics_are_readable_by_fsrl_watch_and_by_python() {
         );
     }
 }
+
+#[test]
+fn one_command_local_training_runs_every_process_and_leaves_a_run_directory() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("local-run");
+    let before = shm_entries();
+    let o = Command::new(env!("CARGO_BIN_EXE_fsrl"))
+        .args([
+            "train",
+            "--method",
+            "sarl",
+            "--setting",
+            "env3-visible",
+            "--actors",
+            "2",
+        ])
+        .args([
+            "--il-episodes",
+            "6",
+            "--il-epochs",
+            "1",
+            "--rl-episodes",
+            "4",
+            "--eval-episodes",
+            "2",
+            "--out",
+        ])
+        .arg(&out)
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{stderr}");
+    assert!(stderr.contains("fsrl watch --connect"), "{stderr}");
+    for f in [
+        "config.toml",
+        "checkpoints/latest.ckpt",
+        "metrics.jsonl",
+        "report.md",
+        "report.json",
+        "logs/learner.log",
+        "logs/actor-1.log",
+        "logs/evaluator.log",
+    ] {
+        assert!(out.join(f).is_file(), "missing {f}");
+    }
+    let r: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
+    assert_eq!(r["settings"].as_array().unwrap().len(), 6);
+    assert_eq!(r["final_snapshot"], true);
+    let loaded = learner::checkpoint::load(&out.join("checkpoints/latest.ckpt")).unwrap();
+    assert_eq!(loaded.core.counters().rl_episodes, 4);
+    assert!(
+        std::fs::read_to_string(out.join("metrics.jsonl"))
+            .unwrap()
+            .lines()
+            .count()
+            >= 1
+    );
+    let leaked: Vec<String> = shm_entries()
+        .into_iter()
+        .filter(|e| !before.contains(e) && e.contains("fsrl"))
+        .collect();
+    assert!(leaked.is_empty(), "shared memory left behind: {leaked:?}");
+    // The same command again refuses to overwrite the run.
+    let o = Command::new(env!("CARGO_BIN_EXE_fsrl"))
+        .args([
+            "train",
+            "--method",
+            "sarl",
+            "--setting",
+            "env3-visible",
+            "--out",
+        ])
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert!(!o.status.success());
+    assert!(String::from_utf8_lossy(&o.stderr).contains("--resume"));
+}

@@ -110,15 +110,15 @@ pub fn run(
         // Membership: a (new) learner gets every unacknowledged episode again.
         while let Some(ev) = alive.recv_timeout(Duration::ZERO)? {
             match ev {
-                AliveEvent::Joined(m) if m.sender.role == Role::Learner => {
-                    if st.learner != Some(m.instance) {
-                        tracing::info!(actor = id, learner = %m, unacked = st.outbox.len(), "learner joined");
-                        st.learner = Some(m.instance);
-                        for (ep, batch) in &st.outbox {
-                            let v = st.outbox_versions.get(ep).copied().unwrap_or(0);
-                            publisher.publish(v, batch)?;
-                            stats.resent += 1;
-                        }
+                AliveEvent::Joined(m)
+                    if m.sender.role == Role::Learner && st.learner != Some(m.instance) =>
+                {
+                    tracing::info!(actor = id, learner = %m, unacked = st.outbox.len(), "learner joined");
+                    st.learner = Some(m.instance);
+                    for (ep, batch) in &st.outbox {
+                        let v = st.outbox_versions.get(ep).copied().unwrap_or(0);
+                        publisher.publish(v, batch)?;
+                        stats.resent += 1;
                     }
                 }
                 AliveEvent::Left(m)
@@ -132,16 +132,7 @@ pub fn run(
         }
         // Acknowledgements: drop what the learner holds; learn where to continue.
         while let Some(msg) = acks.try_recv()? {
-            let ack = &msg.body;
-            if ack.actor != id {
-                continue;
-            }
-            let before = st.outbox.len();
-            st.outbox.retain(|ep, _| !ack.covers(*ep));
-            st.outbox_versions.retain(|ep, _| !ack.covers(*ep));
-            stats.acked += (before - st.outbox.len()) as u64;
-            let next = st.next_episode.get_or_insert(ack.acked_below);
-            *next = (*next).max(ack.acked_below);
+            apply_ack(&mut st, &mut stats, id, &msg.body);
         }
         // Newest weights.
         if let Some(w) = weights.latest()? {
@@ -181,15 +172,7 @@ pub fn run(
             }
             // Block on the next acknowledgement (or time out and re-check everything).
             if let Some(msg) = acks.recv_timeout(Duration::from_millis(50))? {
-                let ack = &msg.body;
-                if ack.actor == id {
-                    let before = st.outbox.len();
-                    st.outbox.retain(|ep, _| !ack.covers(*ep));
-                    st.outbox_versions.retain(|ep, _| !ack.covers(*ep));
-                    stats.acked += (before - st.outbox.len()) as u64;
-                    let next = st.next_episode.get_or_insert(ack.acked_below);
-                    *next = (*next).max(ack.acked_below);
-                }
+                apply_ack(&mut st, &mut stats, id, &msg.body);
             }
             continue;
         }
@@ -224,6 +207,19 @@ pub fn run(
         stats.episodes += 1;
         stats.env_steps += data.steps() as u64;
     }
+}
+
+/// Drops what the learner holds and learns where to continue.
+fn apply_ack(st: &mut State, stats: &mut ActorStats, id: u32, ack: &proto::Ack) {
+    if ack.actor != id {
+        return;
+    }
+    let before = st.outbox.len();
+    st.outbox.retain(|ep, _| !ack.covers(*ep));
+    st.outbox_versions.retain(|ep, _| !ack.covers(*ep));
+    stats.acked += (before - st.outbox.len()) as u64;
+    let next = st.next_episode.get_or_insert(ack.acked_below);
+    *next = (*next).max(ack.acked_below);
 }
 
 fn publish_metrics(

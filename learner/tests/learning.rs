@@ -304,8 +304,8 @@ fn cached_value_targets_equal_fresh_ones_from_the_target_network() {
     let next = policy::StateBatch::new(&batch.next_states, len, 10).unwrap();
     let v = core.trainer().target().values(next);
     let mut worst = 0f32;
-    for i in 0..len {
-        let fresh = batch.rewards[i] + batch.discounts[i] * v[i];
+    for (i, v) in v.iter().enumerate() {
+        let fresh = batch.rewards[i] + batch.discounts[i] * v;
         worst = worst.max((fresh - batch.targets[i]).abs());
     }
     assert!(worst < 1e-6, "cached targets differ by up to {worst}");

@@ -24,6 +24,8 @@ pub enum WireError {
     Chunked { episode: u64, chunk: u32 },
     #[error("episode {0} has not finished (outcome running)")]
     Unfinished(u64),
+    #[error("malformed batch: missing {0}")]
+    Malformed(&'static str),
 }
 
 fn outcome_to_wire(o: Outcome) -> proto::Outcome {
@@ -155,18 +157,15 @@ pub fn from_batch(
     let h = b.n_humans as usize;
     let mut states = Vec::with_capacity(t_len + 1);
     for t in 0..=t_len {
-        // Validation guarantees every row exists.
+        // Validation checked the lengths; a missing row is still an error, never a panic.
         let robot = b
             .robot_state(t)
             .map(|r| robot_from_wire(&r))
-            .unwrap_or_else(|| unreachable_row());
+            .ok_or(WireError::Malformed("robot state row"))?;
         let humans = (0..h)
-            .map(|i| {
-                b.human_state(t, i)
-                    .map(|s| human_from_wire(&s))
-                    .unwrap_or_else(|| unreachable_human())
-            })
-            .collect();
+            .map(|i| b.human_state(t, i).map(|s| human_from_wire(&s)))
+            .collect::<Option<Vec<_>>>()
+            .ok_or(WireError::Malformed("human state row"))?;
         states.push(JointState { robot, humans });
     }
     let rewards: Vec<RewardTerms> = (0..t_len)
@@ -217,29 +216,6 @@ pub fn from_batch(
         policy_version,
         summary,
     })
-}
-
-#[cold]
-fn unreachable_row() -> RobotState {
-    // `validate` checked the lengths; a missing row cannot happen. A zero state keeps this
-    // function total without a panic path.
-    RobotState {
-        position: Vec2::zeros(),
-        velocity: Vec2::zeros(),
-        goal: Vec2::zeros(),
-        heading_rad: 0.0,
-        radius_m: 0.0,
-        v_pref_mps: 0.0,
-    }
-}
-
-#[cold]
-fn unreachable_human() -> HumanObs {
-    HumanObs {
-        position: Vec2::zeros(),
-        velocity: Vec2::zeros(),
-        radius_m: 0.0,
-    }
 }
 
 #[cfg(test)]
