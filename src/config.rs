@@ -222,12 +222,10 @@ impl FileConfig {
         if let Err(e) = proto::RunId::new(self.run.id.as_str()) {
             problems.push(format!("run.id `{}`: {e}", self.run.id));
         }
-        if let Err(e) = self.sim.resolve_settings(&self.evaluator.settings) {
-            problems.extend(
-                e.problems
-                    .into_iter()
-                    .map(|p| format!("evaluator.settings: {p}")),
-            );
+        for name in &self.evaluator.settings {
+            if let Err(e) = name.parse::<Setting>() {
+                problems.push(format!("evaluator.settings: {e}"));
+            }
         }
         if self.evaluator.episodes_per_setting == 0 {
             problems.push("evaluator.episodes_per_setting must be at least 1".into());
