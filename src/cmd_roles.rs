@@ -11,23 +11,16 @@ use anyhow::{bail, Context};
 use proto::{Role, SenderId};
 use transport::{DataPlane, Transport, ZenohMode};
 
-use crate::config::{FileConfig, Resolved};
+use crate::config::{FileConfig, Resolved, RunOverrides};
 
 /// Options every role takes.
 #[derive(Debug, Clone, clap::Args)]
 pub struct CommonArgs {
-    /// Run configuration (TOML; see deploy/).
-    #[arg(long)]
-    pub config: Option<PathBuf>,
+    #[command(flatten)]
+    pub run: RunOverrides,
     /// Run id [default: from the config, else "local"]
     #[arg(long)]
     pub run_id: Option<String>,
-    #[arg(long)]
-    pub method: Option<String>,
-    #[arg(long)]
-    pub setting: Option<String>,
-    #[arg(long)]
-    pub seed: Option<u64>,
     /// zenoh endpoint to listen on (repeatable), e.g. tcp/127.0.0.1:7447
     #[arg(long)]
     pub listen: Vec<String>,
@@ -40,14 +33,6 @@ pub struct CommonArgs {
     /// Data plane: zenoh or iceoryx2
     #[arg(long)]
     pub data_plane: Option<String>,
-    /// Demonstration episodes (short runs)
-    #[arg(long)]
-    pub il_episodes: Option<u64>,
-    #[arg(long)]
-    pub il_epochs: Option<u32>,
-    /// RL episodes of the run
-    #[arg(long)]
-    pub rl_episodes: Option<u64>,
     /// Learner run directory (checkpoints, write-ahead log) [default: runs/<run id>]
     #[arg(long)]
     pub run_dir: Option<PathBuf>,
@@ -56,19 +41,10 @@ pub struct CommonArgs {
 impl CommonArgs {
     /// The file config with every override applied, validated.
     pub fn resolve(&self, extra: impl FnOnce(&mut FileConfig)) -> anyhow::Result<Resolved> {
-        let mut f = FileConfig::load(self.config.as_deref())?;
+        let mut f = self.run.load()?;
         let mut problems = Vec::new();
         if let Some(v) = &self.run_id {
             f.run.id = v.clone();
-        }
-        if let Some(v) = &self.method {
-            f.run.method = v.clone();
-        }
-        if let Some(v) = &self.setting {
-            f.run.setting = v.clone();
-        }
-        if let Some(v) = self.seed {
-            f.run.seed = v;
         }
         if !self.listen.is_empty() {
             f.transport.zenoh.listen = self.listen.clone();
@@ -92,15 +68,6 @@ impl CommonArgs {
             Some("zenoh") => f.transport.data_plane = DataPlane::Zenoh,
             Some("iceoryx2") => f.transport.data_plane = DataPlane::Iceoryx2,
             Some(d) => problems.push(format!("--data-plane must be zenoh or iceoryx2, got `{d}`")),
-        }
-        if let Some(v) = self.il_episodes {
-            f.train.imitation.episodes = v;
-        }
-        if let Some(v) = self.il_epochs {
-            f.train.imitation.epochs = v;
-        }
-        if let Some(v) = self.rl_episodes {
-            f.train.rl.episodes = v;
         }
         if let Some(v) = &self.run_dir {
             f.learner.run_dir = Some(v.clone());

@@ -19,7 +19,7 @@ use policy::rollout::{episode_seed, rollout, Behaviour};
 use serde::Serialize;
 use sim::{Env, Outcome};
 
-use crate::config::{FileConfig, Resolved};
+use crate::config::{run_checkpoint, Resolved, RunOverrides};
 use crate::report::{Report, SettingReport};
 
 /// Episode-seed streams of a run (see `policy::rollout::episode_seed`).
@@ -28,27 +28,8 @@ const RL_STREAM: u64 = 1;
 
 #[derive(Debug, clap::Args)]
 pub struct TrainArgs {
-    /// orca, lstm-rl, sarl, fsrl, sarl+foresight, sarl+efficiency [default: fsrl]
-    #[arg(long)]
-    pub method: Option<String>,
-    /// One of the six settings [default: env1-invisible]
-    #[arg(long)]
-    pub setting: Option<String>,
-    /// Run seed [default: 0]
-    #[arg(long)]
-    pub seed: Option<u64>,
-    /// Run configuration (TOML: [run], [sim], [train] tables).
-    #[arg(long)]
-    pub config: Option<PathBuf>,
-    /// Demonstration episodes for imitation learning [default: 3000]
-    #[arg(long)]
-    pub il_episodes: Option<u64>,
-    /// Imitation epochs [default: 50]
-    #[arg(long)]
-    pub il_epochs: Option<u32>,
-    /// RL episodes [default: 10000]
-    #[arg(long, alias = "episodes")]
-    pub rl_episodes: Option<u64>,
+    #[command(flatten)]
+    pub run: RunOverrides,
     /// Test episodes of the final evaluation [default: 500]
     #[arg(long)]
     pub eval_episodes: Option<u32>,
@@ -94,26 +75,8 @@ struct MetricsLine<'a> {
 }
 
 pub(crate) fn resolve(args: &TrainArgs) -> anyhow::Result<Resolved> {
-    let mut file = FileConfig::load(args.config.as_deref())?;
+    let mut file = args.run.load()?;
     let mut problems = Vec::new();
-    if let Some(m) = &args.method {
-        file.run.method = m.clone();
-    }
-    if let Some(s) = &args.setting {
-        file.run.setting = s.clone();
-    }
-    if let Some(seed) = args.seed {
-        file.run.seed = seed;
-    }
-    if let Some(n) = args.il_episodes {
-        file.train.imitation.episodes = n;
-    }
-    if let Some(n) = args.il_epochs {
-        file.train.imitation.epochs = n;
-    }
-    if let Some(n) = args.rl_episodes {
-        file.train.rl.episodes = n;
-    }
     if let Some(n) = args.eval_episodes {
         file.train.eval_episodes = n;
     }
@@ -177,25 +140,18 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
         .context("cannot install the Ctrl-C handler")?;
     }
     let resolved = resolve(&args)?;
-    let out = args.out.clone().unwrap_or_else(|| {
-        PathBuf::from("runs").join(format!(
-            "{}-{}-s{}",
-            resolved.method.name().replace('+', "-"),
-            resolved.setting,
-            resolved.file.run.seed
-        ))
-    });
+    let out = args
+        .out
+        .clone()
+        .unwrap_or_else(|| resolved.default_run_dir());
+    let latest = run_checkpoint(&out, args.resume)?;
     let ckpt_dir = out.join("checkpoints");
-    let latest = ckpt_dir.join("latest.ckpt");
     std::fs::create_dir_all(&ckpt_dir)
         .with_context(|| format!("cannot create {}", ckpt_dir.display()))?;
 
     let (mut core, resolved) = if args.resume {
-        if !latest.exists() {
-            bail!("--resume: no checkpoint at {}", latest.display());
-        }
         let mut loaded = checkpoint::load(&latest)?;
-        if let Some(n) = args.rl_episodes {
+        if let Some(n) = args.run.rl_episodes {
             loaded.core.set_rl_episodes(n);
         }
         let mut file = resolved.file.clone();
@@ -214,13 +170,6 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
         );
         (loaded.core, file.resolve(Vec::new())?)
     } else {
-        if latest.exists() {
-            bail!(
-                "{} already holds a run (checkpoint {}); pass --resume to continue it or --out to start another",
-                out.display(),
-                latest.display()
-            );
-        }
         let core = LearnerCore::new(
             resolved.method,
             resolved.file.train.clone(),

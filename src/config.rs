@@ -8,6 +8,76 @@ use policy::method::{Method, TrainConfig};
 use serde::{Deserialize, Serialize};
 use sim::{ConfigError, Setting, SimConfig};
 
+/// The command-line options that override a run's config file, shared by `fsrl train` and the
+/// role processes.
+#[derive(Debug, Clone, Default, clap::Args)]
+pub struct RunOverrides {
+    /// Run configuration (TOML: [run], [sim], [train], [transport], [learner], [actor], [evaluator])
+    #[arg(long)]
+    pub config: Option<std::path::PathBuf>,
+    /// orca, lstm-rl, sarl, fsrl, sarl+foresight, sarl+efficiency [default: fsrl]
+    #[arg(long)]
+    pub method: Option<String>,
+    /// One of the six settings [default: env1-invisible]
+    #[arg(long)]
+    pub setting: Option<String>,
+    /// Run seed [default: 0]
+    #[arg(long)]
+    pub seed: Option<u64>,
+    /// Demonstration episodes for imitation learning [default: 3000]
+    #[arg(long)]
+    pub il_episodes: Option<u64>,
+    /// Imitation epochs [default: 50]
+    #[arg(long)]
+    pub il_epochs: Option<u32>,
+    /// RL episodes [default: 10000]
+    #[arg(long)]
+    pub rl_episodes: Option<u64>,
+}
+
+impl RunOverrides {
+    /// Loads the config file and applies the overrides (not yet validated).
+    pub fn load(&self) -> anyhow::Result<FileConfig> {
+        let mut f = FileConfig::load(self.config.as_deref())?;
+        if let Some(v) = &self.method {
+            f.run.method = v.clone();
+        }
+        if let Some(v) = &self.setting {
+            f.run.setting = v.clone();
+        }
+        if let Some(v) = self.seed {
+            f.run.seed = v;
+        }
+        if let Some(v) = self.il_episodes {
+            f.train.imitation.episodes = v;
+        }
+        if let Some(v) = self.il_epochs {
+            f.train.imitation.epochs = v;
+        }
+        if let Some(v) = self.rl_episodes {
+            f.train.rl.episodes = v;
+        }
+        Ok(f)
+    }
+}
+
+/// The checkpoint of the run in `dir`, refusing to overwrite a run without `resume` and to
+/// resume one that does not exist.
+pub fn run_checkpoint(dir: &Path, resume: bool) -> anyhow::Result<std::path::PathBuf> {
+    let ckpt = dir.join("checkpoints").join("latest.ckpt");
+    if ckpt.exists() && !resume {
+        anyhow::bail!(
+            "{} already holds a run (checkpoint {}); pass --resume to continue it or --out to start another",
+            dir.display(),
+            ckpt.display()
+        );
+    }
+    if resume && !ckpt.exists() {
+        anyhow::bail!("--resume: no checkpoint at {}", ckpt.display());
+    }
+    Ok(ckpt)
+}
+
 /// What one training run is.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
@@ -178,6 +248,16 @@ impl Resolved {
             train: self.file.train.clone(),
             seed: self.file.run.seed,
         }
+    }
+
+    /// `runs/<method>-<setting>-s<seed>`: where `fsrl train` puts a run by default.
+    pub fn default_run_dir(&self) -> std::path::PathBuf {
+        std::path::PathBuf::from("runs").join(format!(
+            "{}-{}-s{}",
+            self.method.name().replace('+', "-"),
+            self.setting,
+            self.file.run.seed
+        ))
     }
 
     /// The run directory of the learner (and default home of everything else).

@@ -7,7 +7,7 @@
 use std::fs::File;
 use std::io::Write;
 use std::net::TcpListener;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::{Child, Command, Stdio};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
@@ -19,6 +19,7 @@ use proto::{keys, Role, SenderId};
 use transport::{DataPlane, Transport};
 
 use crate::cmd_train::{resolve, TrainArgs};
+use crate::config::run_checkpoint;
 
 /// zenoh's usual port when it is free, else any free loopback port.
 fn learner_port() -> anyhow::Result<u16> {
@@ -113,25 +114,11 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
     if !problems.is_empty() {
         return Err(sim::ConfigError { problems }.into());
     }
-    let out = args.out.clone().unwrap_or_else(|| {
-        PathBuf::from("runs").join(format!(
-            "{}-{}-s{}",
-            resolved.method.name().replace('+', "-"),
-            resolved.setting,
-            resolved.file.run.seed
-        ))
-    });
-    let ckpt = out.join("checkpoints").join("latest.ckpt");
-    if ckpt.exists() && !args.resume {
-        bail!(
-            "{} already holds a run (checkpoint {}); pass --resume to continue it or --out to start another",
-            out.display(),
-            ckpt.display()
-        );
-    }
-    if args.resume && !ckpt.exists() {
-        bail!("--resume: no checkpoint at {}", ckpt.display());
-    }
+    let out = args
+        .out
+        .clone()
+        .unwrap_or_else(|| resolved.default_run_dir());
+    run_checkpoint(&out, args.resume)?;
     let logs = out.join("logs");
     std::fs::create_dir_all(&logs).with_context(|| format!("cannot create {}", logs.display()))?;
 

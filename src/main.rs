@@ -72,3 +72,12 @@ fn main() -> ExitCode {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn the_command_line_definition_is_consistent() {
+        // clap's own checks (duplicate flags, conflicting names), which release builds skip.
+        <super::Cli as clap::CommandFactory>::command().debug_assert();
+    }
+}
