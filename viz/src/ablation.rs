@@ -55,6 +55,7 @@ fn metric_panel<DB: DrawingBackend>(
         .configure_mesh()
         .disable_x_mesh()
         .light_line_style(style::GRID)
+        .max_light_lines(0)
         .bold_line_style(style::GRID)
         .x_labels(0)
         .y_labels(6)
@@ -75,7 +76,7 @@ fn metric_panel<DB: DrawingBackend>(
             chart.draw_series(style::error_bar(0.5 + j as f64, v.lo, v.hi, 0.06))?;
         }
         chart.draw_series(std::iter::once(Text::new(
-            format!("{mean:.2}"),
+            format!("{mean:.3}"),
             (j as f64 + 0.5, v.hi.max(mean)),
             style::font(12.0).pos(Pos::new(HPos::Center, VPos::Bottom)),
         )))?;

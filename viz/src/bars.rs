@@ -61,6 +61,7 @@ pub(crate) fn outcome_panel<DB: DrawingBackend>(
         .configure_mesh()
         .disable_x_mesh()
         .light_line_style(style::GRID)
+        .max_light_lines(0)
         .bold_line_style(style::GRID)
         .x_labels(0)
         .y_labels(6)
@@ -71,7 +72,14 @@ pub(crate) fn outcome_panel<DB: DrawingBackend>(
         .draw()?;
     style::category_labels(area, |x| chart.backend_coord(&(x, 0.0)), methods)?;
     for (j, cell) in cells.iter().enumerate().take(m) {
-        let Some(cell) = cell else { continue };
+        let Some(cell) = cell else {
+            chart.draw_series(std::iter::once(Text::new(
+                "no result",
+                (j as f64 + 0.5, 0.05),
+                style::font(12.0).pos(Pos::new(HPos::Center, VPos::Bottom)),
+            )))?;
+            continue;
+        };
         for (k, (iv, color)) in [
             (cell.success, SUCCESS),
             (cell.collision, COLLISION),

@@ -125,8 +125,10 @@ fn line_panel<DB: DrawingBackend>(
         chart
             .configure_mesh()
             .light_line_style(style::GRID)
+        .max_light_lines(0)
             .bold_line_style(style::GRID)
             .x_desc(panel.x_desc)
+            .x_label_formatter(&|x| format!("{x:.0}"))
             .y_desc(panel.y_desc)
             .y_label_formatter(&|y| format!("{y:.0e}"))
             .label_style(label_style)
@@ -144,8 +146,10 @@ fn line_panel<DB: DrawingBackend>(
         chart
             .configure_mesh()
             .light_line_style(style::GRID)
+        .max_light_lines(0)
             .bold_line_style(style::GRID)
             .x_desc(panel.x_desc)
+            .x_label_formatter(&|x| format!("{x:.0}"))
             .y_desc(panel.y_desc)
             .label_style(label_style)
             .axis_desc_style(desc_style)

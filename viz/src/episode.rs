@@ -140,6 +140,7 @@ fn scene<DB: DrawingBackend>(
         .build_cartesian_2d(-HALF_M..HALF_M, -HALF_M..HALF_M)?;
     let mut mesh = chart.configure_mesh();
     mesh.light_line_style(style::GRID)
+        .max_light_lines(1)
         .bold_line_style(style::GRID)
         .x_labels(12)
         .y_labels(12)

@@ -25,7 +25,7 @@ fn out_dir() -> (Option<tempfile::TempDir>, PathBuf) {
 }
 
 /// Parses the SVG and returns (width, height, fill colours of every `rect` and `polygon`,
-/// number of `polyline`s, all text).
+/// number of 2-px `polyline`s, all text).
 fn svg_facts(path: &Path) -> (f64, f64, Vec<String>, usize, String) {
     let text = std::fs::read_to_string(path).unwrap();
     let doc = roxmltree::Document::parse(&text).unwrap();
@@ -39,7 +39,8 @@ fn svg_facts(path: &Path) -> (f64, f64, Vec<String>, usize, String) {
     for n in doc.descendants() {
         match n.tag_name().name() {
             "rect" | "polygon" => fills.push(n.attribute("fill").unwrap_or("").to_uppercase()),
-            "polyline" => polylines += 1,
+            // Data series are 2 px wide; mesh lines, axes and error bars 1 px.
+            "polyline" if n.attribute("stroke-width") == Some("2") => polylines += 1,
             "text" => {
                 words.push_str(n.text().unwrap_or(""));
                 words.push('\n');
