@@ -125,7 +125,7 @@ fn line_panel<DB: DrawingBackend>(
         chart
             .configure_mesh()
             .light_line_style(style::GRID)
-        .max_light_lines(0)
+            .max_light_lines(0)
             .bold_line_style(style::GRID)
             .x_desc(panel.x_desc)
             .x_label_formatter(&|x| format!("{x:.0}"))
@@ -146,7 +146,7 @@ fn line_panel<DB: DrawingBackend>(
         chart
             .configure_mesh()
             .light_line_style(style::GRID)
-        .max_light_lines(0)
+            .max_light_lines(0)
             .bold_line_style(style::GRID)
             .x_desc(panel.x_desc)
             .x_label_formatter(&|x| format!("{x:.0}"))
