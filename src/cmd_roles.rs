@@ -105,6 +105,10 @@ pub fn open_transport(
     loop {
         match Transport::open(cfg.clone()) {
             Ok(t) => return Ok(t),
+            // A configuration problem (e.g. an unreadable certificate) does not go away.
+            Err(e @ transport::TransportError::Config(_)) => {
+                return Err(e).with_context(|| format!("{sender}: cannot open the transport"))
+            }
             Err(e) => {
                 eprintln!(
                     "{sender}: cannot open the transport (listen {:?}, connect {:?}): {e}; retrying in {:.1} s",

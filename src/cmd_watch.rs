@@ -9,8 +9,12 @@ use transport::{Transport, TransportConfig, ZenohConfig};
 #[derive(Debug, clap::Args)]
 pub struct WatchArgs {
     /// zenoh endpoint of a process of the run (the learner) or a router (repeatable)
-    #[arg(long, required = true)]
+    #[arg(long, required_unless_present = "config")]
     pub connect: Vec<String>,
+    /// Take the zenoh session (mode, endpoints, TLS, credentials) from this run config's
+    /// [transport.zenoh], e.g. deploy/cluster-monitor.toml; --connect still overrides
+    #[arg(long)]
+    pub config: Option<std::path::PathBuf>,
     /// Run id
     #[arg(long, default_value = "local")]
     pub run: String,
@@ -26,7 +30,16 @@ pub fn run(args: WatchArgs) -> anyhow::Result<()> {
     let run =
         RunId::new(args.run.clone()).map_err(|e| anyhow::anyhow!("--run `{}`: {e}", args.run))?;
     let mut cfg = TransportConfig::new(run, SenderId::new(Role::Monitor, std::process::id()));
-    cfg.zenoh = ZenohConfig::peer(vec!["tcp/127.0.0.1:0".into()], args.connect.clone());
+    cfg.zenoh = match &args.config {
+        Some(path) => {
+            let mut z = crate::config::FileConfig::load(Some(path))?.transport.zenoh;
+            if !args.connect.is_empty() {
+                z.connect = args.connect.clone();
+            }
+            z
+        }
+        None => ZenohConfig::peer(vec!["tcp/127.0.0.1:0".into()], args.connect.clone()),
+    };
     let t = Transport::open(cfg)?;
     let sub = t.subscriber(&keys::all_metrics(t.run()))?;
     let start = Instant::now();
@@ -59,7 +72,8 @@ pub fn run(args: WatchArgs) -> anyhow::Result<()> {
             None if !quiet_warned && start.elapsed() > Duration::from_secs(5) && seen == 0 => {
                 eprintln!(
                     "no metrics yet from run `{}` via {:?}; still listening",
-                    args.run, args.connect
+                    args.run,
+                    t.config().zenoh.connect
                 );
                 quiet_warned = true;
             }

@@ -278,7 +278,17 @@ impl FileConfig {
         };
         let text = std::fs::read_to_string(path)
             .with_context(|| format!("cannot read config file {}", path.display()))?;
-        toml::from_str(&text).with_context(|| format!("invalid config file {}", path.display()))
+        let mut f: Self = toml::from_str(&text)
+            .with_context(|| format!("invalid config file {}", path.display()))?;
+        // Certificates and password files named relative to the config file's directory.
+        // (Absolute, so that a resolved config written elsewhere, e.g. by `fsrl train`, still
+        // names the same files.)
+        let abs = std::path::absolute(path)
+            .with_context(|| format!("cannot resolve the path {}", path.display()))?;
+        f.transport
+            .zenoh
+            .resolve_paths(abs.parent().unwrap_or(Path::new("/")));
+        Ok(f)
     }
 
     /// Validates everything at once.

@@ -2,7 +2,11 @@
 //! policies. The binary is thin: parse arguments, install logging, run a subcommand.
 
 mod cmd_check;
+mod cmd_compare;
+mod cmd_eval;
+mod cmd_plot;
 mod cmd_roles;
+mod cmd_router;
 mod cmd_sim;
 mod cmd_train;
 mod cmd_watch;
@@ -32,12 +36,20 @@ enum Command {
     Sim(cmd_sim::SimArgs),
     /// Train one method on one setting: imitation, then deep V-learning, then evaluation.
     Train(cmd_train::TrainArgs),
+    /// Evaluate checkpoints or ORCA on all six settings: metrics with intervals (md, csv, json).
+    Eval(cmd_eval::EvalArgs),
+    /// One table across runs: methods × settings, mean ± std over seeds, beside the paper.
+    Compare(cmd_compare::CompareArgs),
+    /// Pictures (SVG and PNG): outcome bars, learning curves, ablation, episode with attention.
+    Plot(cmd_plot::PlotArgs),
     /// The learner process of a distributed run.
     Learner(cmd_roles::LearnerArgs),
     /// An actor process of a distributed run.
     Actor(cmd_roles::ActorArgs),
     /// The evaluator process of a distributed run, or `--checkpoint FILE` offline.
     Evaluator(cmd_roles::EvaluatorArgs),
+    /// A zenoh router (TLS, user/password, access control) from a zenoh JSON5 file.
+    Router(cmd_router::RouterArgs),
     /// Show a run's live metrics.
     Watch(cmd_watch::WatchArgs),
     /// Parse and validate run configuration files.
@@ -58,9 +70,13 @@ fn main() -> ExitCode {
     let result = match cli.command {
         Command::Sim(args) => cmd_sim::run(args),
         Command::Train(args) => cmd_train::run(args),
+        Command::Eval(args) => cmd_eval::run(args),
+        Command::Compare(args) => cmd_compare::run(args),
+        Command::Plot(args) => cmd_plot::run(args),
         Command::Learner(args) => cmd_roles::learner(args),
         Command::Actor(args) => cmd_roles::actor(args),
         Command::Evaluator(args) => cmd_roles::evaluator(args),
+        Command::Router(args) => cmd_router::run(args),
         Command::Watch(args) => cmd_watch::run(args),
         Command::CheckConfig(args) => cmd_check::run(args),
     };

@@ -1,43 +1,188 @@
-//! Evaluation reports: the paper's metrics per setting as JSON and as a Markdown table.
+//! Evaluation reports: the paper's metrics per setting with their uncertainty, as JSON, CSV and
+//! Markdown in the paper's table layout (Tables I and II: invisible Env 1–3 and average, then
+//! visible), with the paper's numbers (SPEC §8) beside ours.
+//!
+//! Uncertainty: success, collision and timeout rates carry a 95% Wilson score interval; the
+//! navigation time (mean over successful episodes) a 95% Student-t interval. Field names are
+//! stable and plain (`success`, `success_ci95`, `nav_time_s`, ...) so other tools can read them.
 
-use serde::Serialize;
-use sim::Aggregate;
+use std::fmt::Write as _;
+use std::path::Path;
 
-/// One setting's metrics, with field names other tools can read.
-#[derive(Debug, Clone, Serialize)]
-pub struct SettingReport {
-    pub setting: String,
-    pub episodes: u32,
-    pub success: f64,
-    pub collision: f64,
-    pub timeout: f64,
-    /// Mean over successful episodes; null without a success.
-    pub nav_time_s: Option<f64>,
-    pub disc: f64,
-    pub path_length_m: Option<f64>,
-    pub mean_abs_rotation_rad: f64,
-    pub mean_return: f64,
+use anyhow::Context;
+use serde::{Deserialize, Serialize};
+use sim::{Aggregate, Setting};
+
+/// z for a two-sided 95% interval.
+const Z95: f64 = 1.959_963_984_540_054;
+
+/// The 95% Wilson score interval of `k` successes in `n` trials ([0, 1] when `n` = 0).
+pub fn wilson(k: u32, n: u32) -> [f64; 2] {
+    if n == 0 {
+        return [0.0, 1.0];
+    }
+    let (k, n) = (k as f64, n as f64);
+    let p = k / n;
+    let z2 = Z95 * Z95;
+    let denom = 1.0 + z2 / n;
+    let centre = (p + z2 / (2.0 * n)) / denom;
+    let half = Z95 / denom * (p * (1.0 - p) / n + z2 / (4.0 * n * n)).sqrt();
+    // At k = 0 (k = n) the lower (upper) bound is exactly 0 (1); rounding would leave ±1e-18.
+    let lo = if k == 0.0 {
+        0.0
+    } else {
+        (centre - half).max(0.0)
+    };
+    let hi = if k == n {
+        1.0
+    } else {
+        (centre + half).min(1.0)
+    };
+    [lo, hi]
 }
 
-impl SettingReport {
-    pub fn new(setting: &str, a: &Aggregate) -> Self {
-        Self {
-            setting: setting.to_string(),
-            episodes: a.episodes,
-            success: a.success_rate(),
-            collision: a.collision_rate(),
-            timeout: a.timeout_rate(),
-            nav_time_s: a.nav_time_s(),
-            disc: a.discomfort(),
-            path_length_m: a.path_length_m(),
-            mean_abs_rotation_rad: a.mean_abs_rotation_rad(),
-            mean_return: a.mean_return(),
+/// The 0.975 quantile of Student's t with `df` degrees of freedom.
+pub fn t975(df: u32) -> f64 {
+    const TABLE: [f64; 30] = [
+        12.706, 4.303, 3.182, 2.776, 2.571, 2.447, 2.365, 2.306, 2.262, 2.228, 2.201, 2.179, 2.160,
+        2.145, 2.131, 2.120, 2.110, 2.101, 2.093, 2.086, 2.080, 2.074, 2.069, 2.064, 2.060, 2.056,
+        2.052, 2.048, 2.045, 2.042,
+    ];
+    match df {
+        0 => f64::INFINITY,
+        1..=30 => TABLE[df as usize - 1],
+        _ => {
+            // Cornish–Fisher expansion around the normal quantile (error < 1e-4 for df > 30).
+            let (z, v) = (Z95, df as f64);
+            z + (z.powi(3) + z) / (4.0 * v)
+                + (5.0 * z.powi(5) + 16.0 * z.powi(3) + 3.0 * z) / (96.0 * v * v)
         }
     }
 }
 
-/// A whole report.
-#[derive(Debug, Clone, Serialize)]
+/// Mean, sample standard deviation (`None` below two values) of `xs`.
+pub fn mean_std(xs: &[f64]) -> Option<(f64, Option<f64>)> {
+    if xs.is_empty() {
+        return None;
+    }
+    let n = xs.len() as f64;
+    let mean = xs.iter().sum::<f64>() / n;
+    let std = (xs.len() > 1)
+        .then(|| (xs.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1.0)).sqrt());
+    Some((mean, std))
+}
+
+/// The 95% t interval of the mean of `xs` (`None` below two values).
+pub fn mean_ci95(xs: &[f64]) -> Option<[f64; 2]> {
+    let (mean, std) = mean_std(xs)?;
+    let half = t975(xs.len() as u32 - 1) * std? / (xs.len() as f64).sqrt();
+    Some([mean - half, mean + half])
+}
+
+/// Per-episode samples of one setting, for the intervals an aggregate cannot give.
+#[derive(Debug, Clone, Default)]
+pub struct Samples {
+    /// Navigation times of the successful episodes.
+    pub nav_times_s: Vec<f64>,
+    /// Path lengths of the successful episodes.
+    pub path_lengths_m: Vec<f64>,
+    /// Returns of all episodes.
+    pub returns: Vec<f64>,
+}
+
+/// One setting's metrics, with field names other tools can read.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SettingReport {
+    pub setting: String,
+    pub episodes: u32,
+    #[serde(default)]
+    pub successes: u32,
+    #[serde(default)]
+    pub collisions: u32,
+    #[serde(default)]
+    pub timeouts: u32,
+    pub success: f64,
+    /// 95% Wilson interval.
+    #[serde(default)]
+    pub success_ci95: Option<[f64; 2]>,
+    pub collision: f64,
+    #[serde(default)]
+    pub collision_ci95: Option<[f64; 2]>,
+    pub timeout: f64,
+    #[serde(default)]
+    pub timeout_ci95: Option<[f64; 2]>,
+    /// Mean over successful episodes; null without a success.
+    pub nav_time_s: Option<f64>,
+    /// 95% t interval of the mean nav time; null without per-episode samples or below two
+    /// successes.
+    #[serde(default)]
+    pub nav_time_ci95_s: Option<[f64; 2]>,
+    #[serde(default)]
+    pub nav_time_std_s: Option<f64>,
+    /// Disc.: danger steps / all steps.
+    pub disc: f64,
+    #[serde(default)]
+    pub danger_steps: u64,
+    #[serde(default)]
+    pub steps: u64,
+    /// Mean over successful episodes.
+    pub path_length_m: Option<f64>,
+    #[serde(default)]
+    pub path_length_std_m: Option<f64>,
+    /// Smoothness: mean |Δθ| per step.
+    pub mean_abs_rotation_rad: f64,
+    pub mean_return: f64,
+    #[serde(default)]
+    pub return_std: Option<f64>,
+}
+
+impl SettingReport {
+    /// From an aggregate alone: rates with Wilson intervals, no nav-time interval.
+    pub fn new(setting: &str, a: &Aggregate) -> Self {
+        Self {
+            setting: setting.to_string(),
+            episodes: a.episodes,
+            successes: a.successes,
+            collisions: a.collisions,
+            timeouts: a.timeouts,
+            success: a.success_rate(),
+            success_ci95: Some(wilson(a.successes, a.episodes)),
+            collision: a.collision_rate(),
+            collision_ci95: Some(wilson(a.collisions, a.episodes)),
+            timeout: a.timeout_rate(),
+            timeout_ci95: Some(wilson(a.timeouts, a.episodes)),
+            nav_time_s: a.nav_time_s(),
+            nav_time_ci95_s: None,
+            nav_time_std_s: None,
+            disc: a.discomfort(),
+            danger_steps: a.danger_steps,
+            steps: a.steps,
+            path_length_m: a.path_length_m(),
+            path_length_std_m: None,
+            mean_abs_rotation_rad: a.mean_abs_rotation_rad(),
+            mean_return: a.mean_return(),
+            return_std: None,
+        }
+    }
+
+    /// From an aggregate and its per-episode samples: every interval.
+    pub fn with_samples(setting: &str, a: &Aggregate, s: &Samples) -> Self {
+        let mut r = Self::new(setting, a);
+        r.nav_time_ci95_s = mean_ci95(&s.nav_times_s);
+        r.nav_time_std_s = mean_std(&s.nav_times_s).and_then(|m| m.1);
+        r.path_length_std_m = mean_std(&s.path_lengths_m).and_then(|m| m.1);
+        r.return_std = mean_std(&s.returns).and_then(|m| m.1);
+        r
+    }
+
+    /// The setting, when the name is one of the six.
+    pub fn parsed_setting(&self) -> Option<Setting> {
+        self.setting.parse().ok()
+    }
+}
+
+/// The report `fsrl train` writes after training (one method, the trained setting).
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct Report {
     pub method: String,
     pub policy_version: u64,
@@ -49,27 +194,446 @@ fn opt(v: Option<f64>, digits: usize) -> String {
     v.map_or_else(|| "–".to_string(), |x| format!("{x:.digits$}"))
 }
 
+fn interval(v: f64, ci: Option<[f64; 2]>, digits: usize) -> String {
+    match ci {
+        Some([lo, hi]) => format!("{v:.digits$} [{lo:.digits$}, {hi:.digits$}]"),
+        None => format!("{v:.digits$}"),
+    }
+}
+
+fn opt_interval(v: Option<f64>, ci: Option<[f64; 2]>, digits: usize) -> String {
+    v.map_or_else(|| "–".to_string(), |v| interval(v, ci, digits))
+}
+
+/// A per-setting table of every metric with its interval.
+fn detail_table(settings: &[SettingReport]) -> String {
+    let mut s = String::from(
+        "| setting | episodes | Succ. | Coll. | Timeout | Nav. Time (s) | Disc. | Path (m) | mean abs dθ (rad/step) | return |\n|---|---|---|---|---|---|---|---|---|---|\n",
+    );
+    for r in settings {
+        let _ = writeln!(
+            s,
+            "| {} | {} | {} | {} | {} | {} | {:.3} | {} | {:.4} | {:.3} |",
+            r.setting,
+            r.episodes,
+            interval(r.success, r.success_ci95, 3),
+            interval(r.collision, r.collision_ci95, 3),
+            interval(r.timeout, r.timeout_ci95, 3),
+            opt_interval(r.nav_time_s, r.nav_time_ci95_s, 2),
+            r.disc,
+            opt(r.path_length_m, 2),
+            r.mean_abs_rotation_rad,
+            r.mean_return,
+        );
+    }
+    s
+}
+
 impl Report {
-    /// The paper's layout: Succ., Coll., Timeout, Nav. Time, Disc. per setting.
+    /// Every metric per setting, rates with 95% Wilson intervals.
+    pub fn markdown(&self) -> String {
+        format!(
+            "Method `{}`, policy version {}, test seeds from {}. Brackets: 95% intervals (Wilson for rates, t for Nav. Time).\n\n{}",
+            self.method,
+            self.policy_version,
+            self.test_seed_start,
+            detail_table(&self.settings)
+        )
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// The paper's numbers (SPEC §8).
+
+/// Paper table rows, in [`Setting::ALL`] order (invisible Env 1–3, visible Env 1–3).
+const PAPER_NAV_TIME: [(&str, [f64; 6]); 4] = [
+    ("orca", [12.49, 11.98, 12.04, 11.99, 10.97, 10.74]),
+    ("lstm-rl", [15.52, 14.12, 12.81, 11.01, 10.96, 12.32]),
+    ("sarl", [12.25, 11.39, 11.15, 9.85, 10.33, 10.01]),
+    ("fsrl", [10.90, 10.92, 11.69, 11.08, 10.32, 11.60]),
+];
+const PAPER_NAV_TIME_AVG: [(&str, [f64; 2]); 4] = [
+    ("orca", [12.14, 11.23]),
+    ("lstm-rl", [14.15, 11.29]),
+    ("sarl", [11.60, 10.06]),
+    ("fsrl", [11.04, 11.00]),
+];
+const PAPER_DISC: [(&str, [f64; 6]); 4] = [
+    ("orca", [0.39, 0.38, 0.43, 0.41, 0.41, 0.45]),
+    ("lstm-rl", [0.07, 0.28, 0.16, 0.11, 0.35, 0.39]),
+    ("sarl", [0.01, 0.06, 0.06, 0.09, 0.11, 0.10]),
+    ("fsrl", [0.01, 0.07, 0.04, 0.06, 0.08, 0.07]),
+];
+const PAPER_DISC_AVG: [(&str, [f64; 2]); 4] = [
+    ("orca", [0.40, 0.42]),
+    ("lstm-rl", [0.17, 0.20]),
+    ("sarl", [0.04, 0.10]),
+    ("fsrl", [0.04, 0.07]),
+];
+
+/// The metrics of the paper's tables (and ours beside them).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Metric {
+    Success,
+    Collision,
+    Timeout,
+    NavTime,
+    Disc,
+    PathLength,
+    Smoothness,
+    Return,
+}
+
+impl Metric {
+    pub const ALL: [Metric; 8] = [
+        Metric::Success,
+        Metric::Collision,
+        Metric::Timeout,
+        Metric::NavTime,
+        Metric::Disc,
+        Metric::PathLength,
+        Metric::Smoothness,
+        Metric::Return,
+    ];
+
+    pub fn title(self) -> &'static str {
+        match self {
+            Metric::Success => "Succ. (success rate)",
+            Metric::Collision => "Coll. (collision rate)",
+            Metric::Timeout => "Timeout (timeout rate)",
+            Metric::NavTime => "Nav. Time (s, mean over successful episodes; paper Table I)",
+            Metric::Disc => "Disc. (danger steps / all steps; paper Table II, whose header says % but whose numbers are these fractions)",
+            Metric::PathLength => "Path length (m, mean over successful episodes)",
+            Metric::Smoothness => "Smoothness (mean |Δθ| per step, rad)",
+            Metric::Return => "Mean return (the method's own reward)",
+        }
+    }
+
+    pub fn digits(self) -> usize {
+        match self {
+            Metric::Success | Metric::Collision | Metric::Timeout | Metric::Disc => 3,
+            Metric::NavTime | Metric::PathLength => 2,
+            Metric::Smoothness => 4,
+            Metric::Return => 3,
+        }
+    }
+
+    /// Our value and its interval on one setting.
+    pub fn of(self, r: &SettingReport) -> Option<(f64, Option<[f64; 2]>)> {
+        match self {
+            Metric::Success => Some((r.success, r.success_ci95)),
+            Metric::Collision => Some((r.collision, r.collision_ci95)),
+            Metric::Timeout => Some((r.timeout, r.timeout_ci95)),
+            Metric::NavTime => r.nav_time_s.map(|v| (v, r.nav_time_ci95_s)),
+            Metric::Disc => Some((r.disc, None)),
+            Metric::PathLength => r.path_length_m.map(|v| (v, None)),
+            Metric::Smoothness => Some((r.mean_abs_rotation_rad, None)),
+            Metric::Return => Some((r.mean_return, None)),
+        }
+    }
+
+    /// The paper's value for `method` on `setting`, where the paper has one.
+    pub fn paper(self, method: &str, setting: Setting) -> Option<f64> {
+        let table = match self {
+            Metric::NavTime => &PAPER_NAV_TIME,
+            Metric::Disc => &PAPER_DISC,
+            _ => return None,
+        };
+        table
+            .iter()
+            .find(|(m, _)| *m == method)
+            .map(|(_, v)| v[setting.index()])
+    }
+
+    /// The paper's average over Env 1–3 of one visibility.
+    pub fn paper_avg(self, method: &str, visible: bool) -> Option<f64> {
+        let table = match self {
+            Metric::NavTime => &PAPER_NAV_TIME_AVG,
+            Metric::Disc => &PAPER_DISC_AVG,
+            _ => return None,
+        };
+        table
+            .iter()
+            .find(|(m, _)| *m == method)
+            .map(|(_, v)| v[visible as usize])
+    }
+
+    pub fn has_paper(self) -> bool {
+        matches!(self, Metric::NavTime | Metric::Disc)
+    }
+}
+
+/// The paper's name of a method.
+pub fn paper_name(method: &str) -> &str {
+    match method {
+        "orca" => "ORCA",
+        "lstm-rl" => "LSTM-RL",
+        "sarl" => "SARL",
+        "fsrl" => "FSRL",
+        m => m,
+    }
+}
+
+/// Column headers of the paper's layout.
+pub const PAPER_COLUMNS: &str = "| inv. Env 1 | inv. Env 2 | inv. Env 3 | inv. AVG | vis. Env 1 | vis. Env 2 | vis. Env 3 | vis. AVG |";
+
+/// One row of the paper layout: the six settings' cells with the two averages inserted.
+/// `cell(setting)` gives (text, value for the average).
+pub fn paper_layout_row(cell: impl Fn(Setting) -> (String, Option<f64>), digits: usize) -> String {
+    let mut out = String::new();
+    for visible in [false, true] {
+        let mut values = Vec::new();
+        for s in Setting::ALL.iter().filter(|s| s.robot_visible == visible) {
+            let (text, v) = cell(*s);
+            values.extend(v);
+            let _ = write!(out, " {text} |");
+        }
+        // The average exists only when all three environments have a value.
+        let avg = (values.len() == 3).then(|| values.iter().sum::<f64>() / 3.0);
+        let _ = write!(out, " {} |", opt(avg, digits));
+    }
+    out
+}
+
+/// The paper's row for `metric` and `method`, when it has one.
+pub fn paper_row(metric: Metric, method: &str) -> Option<String> {
+    Metric::paper(metric, method, Setting::ALL[0])?;
+    let d = metric.digits().min(2);
+    let mut out = format!("| {} (paper) |", paper_name(method));
+    for visible in [false, true] {
+        for s in Setting::ALL.iter().filter(|s| s.robot_visible == visible) {
+            let _ = write!(out, " {} |", opt(metric.paper(method, *s), d));
+        }
+        let _ = write!(out, " {} |", opt(metric.paper_avg(method, visible), d));
+    }
+    Some(out)
+}
+
+// ---------------------------------------------------------------------------------------------
+// `fsrl eval` reports.
+
+/// One evaluated policy.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct SubjectReport {
+    /// A short name for tables and legends (run directory name, checkpoint file, or `orca`).
+    pub label: String,
+    /// orca, lstm-rl, sarl, fsrl, sarl+foresight, sarl+efficiency
+    pub method: String,
+    /// The checkpoint evaluated (null for ORCA).
+    pub checkpoint: Option<String>,
+    pub policy_version: u64,
+    /// The training run's seed and setting, when known.
+    pub run_seed: Option<u64>,
+    pub trained_setting: Option<String>,
+    pub settings: Vec<SettingReport>,
+}
+
+impl SubjectReport {
+    pub fn setting(&self, s: Setting) -> Option<&SettingReport> {
+        self.settings.iter().find(|r| r.setting == s.name())
+    }
+}
+
+/// What `fsrl eval` writes (`eval.json`).
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct EvalReport {
+    /// Always "fsrl eval": lets readers tell this file from other JSON.
+    pub kind: String,
+    pub test_seed_start: u64,
+    pub episodes_per_setting: u32,
+    pub subjects: Vec<SubjectReport>,
+}
+
+pub const EVAL_KIND: &str = "fsrl eval";
+
+impl EvalReport {
+    /// The paper's layout, one table per metric, our rows with the paper's beside them; then
+    /// every subject's per-setting details.
     pub fn markdown(&self) -> String {
         let mut s = format!(
-            "Method `{}`, policy version {}, test seeds from {}.\n\n| setting | episodes | Succ. | Coll. | Timeout | Nav. Time (s) | Disc. | Path (m) | mean abs dθ (rad/step) |\n|---|---|---|---|---|---|---|---|---|\n",
-            self.method, self.policy_version, self.test_seed_start
+            "# Evaluation\n\n{} test episodes per setting, seeds {}..{}. Rates carry 95% Wilson intervals and Nav. Time a 95% t interval, in brackets; AVG is the mean over Env 1–3. Rows marked (paper) are the paper's Tables I–II (SPEC §8); the paper has no table of rates (only its Fig. 5).\n\n",
+            self.episodes_per_setting,
+            self.test_seed_start,
+            self.test_seed_start + self.episodes_per_setting as u64 - 1
         );
-        for r in &self.settings {
-            s += &format!(
-                "| {} | {} | {:.3} | {:.3} | {:.3} | {} | {:.3} | {} | {:.4} |\n",
-                r.setting,
-                r.episodes,
-                r.success,
-                r.collision,
-                r.timeout,
-                opt(r.nav_time_s, 2),
-                r.disc,
-                opt(r.path_length_m, 2),
-                r.mean_abs_rotation_rad
+        for metric in Metric::ALL {
+            let d = metric.digits();
+            let _ = writeln!(s, "## {}\n", metric.title());
+            let _ = writeln!(s, "| method {PAPER_COLUMNS}");
+            let _ = writeln!(s, "|---|---|---|---|---|---|---|---|---|");
+            let mut paper_done = Vec::new();
+            for subj in &self.subjects {
+                let row = paper_layout_row(
+                    |setting| match subj.setting(setting).and_then(|r| metric.of(r)) {
+                        Some((v, ci)) => (interval(v, ci, d), Some(v)),
+                        None => ("–".into(), None),
+                    },
+                    d,
+                );
+                let _ = writeln!(s, "| {} |{row}", subj.label);
+                if metric.has_paper() && !paper_done.contains(&subj.method) {
+                    if let Some(p) = paper_row(metric, &subj.method) {
+                        let _ = writeln!(s, "{p}");
+                    }
+                    paper_done.push(subj.method.clone());
+                }
+            }
+            s.push('\n');
+        }
+        s += "## Details per policy\n\n";
+        for subj in &self.subjects {
+            let _ = writeln!(
+                s,
+                "### {}\n\nMethod `{}`, policy version {}{}{}.\n\n{}",
+                subj.label,
+                subj.method,
+                subj.policy_version,
+                subj.checkpoint
+                    .as_ref()
+                    .map_or(String::new(), |c| format!(", checkpoint `{c}`")),
+                subj.trained_setting
+                    .as_ref()
+                    .map_or(String::new(), |t| format!(
+                        ", trained on {t} (run seed {})",
+                        subj.run_seed.unwrap_or(0)
+                    )),
+                detail_table(&subj.settings)
             );
         }
         s
+    }
+
+    /// One row per (policy, setting), every metric and interval bound in its own column.
+    pub fn csv(&self) -> String {
+        let mut s = String::from(
+            "label,method,checkpoint,policy_version,run_seed,trained_setting,setting,episodes,successes,collisions,timeouts,success,success_lo,success_hi,collision,collision_lo,collision_hi,timeout,timeout_lo,timeout_hi,nav_time_s,nav_time_lo_s,nav_time_hi_s,nav_time_std_s,disc,danger_steps,steps,path_length_m,path_length_std_m,mean_abs_rotation_rad,mean_return,return_std,paper_nav_time_s,paper_disc\n",
+        );
+        let f = |v: Option<f64>| v.map_or(String::new(), |x| format!("{x}"));
+        let lo = |c: Option<[f64; 2]>| f(c.map(|c| c[0]));
+        let hi = |c: Option<[f64; 2]>| f(c.map(|c| c[1]));
+        for subj in &self.subjects {
+            for r in &subj.settings {
+                let setting = r.parsed_setting();
+                let paper = |m: Metric| f(setting.and_then(|st| m.paper(&subj.method, st)));
+                let fields = [
+                    csv_field(&subj.label),
+                    csv_field(&subj.method),
+                    csv_field(subj.checkpoint.as_deref().unwrap_or("")),
+                    subj.policy_version.to_string(),
+                    subj.run_seed.map_or(String::new(), |v| v.to_string()),
+                    csv_field(subj.trained_setting.as_deref().unwrap_or("")),
+                    csv_field(&r.setting),
+                    r.episodes.to_string(),
+                    r.successes.to_string(),
+                    r.collisions.to_string(),
+                    r.timeouts.to_string(),
+                    r.success.to_string(),
+                    lo(r.success_ci95),
+                    hi(r.success_ci95),
+                    r.collision.to_string(),
+                    lo(r.collision_ci95),
+                    hi(r.collision_ci95),
+                    r.timeout.to_string(),
+                    lo(r.timeout_ci95),
+                    hi(r.timeout_ci95),
+                    f(r.nav_time_s),
+                    lo(r.nav_time_ci95_s),
+                    hi(r.nav_time_ci95_s),
+                    f(r.nav_time_std_s),
+                    r.disc.to_string(),
+                    r.danger_steps.to_string(),
+                    r.steps.to_string(),
+                    f(r.path_length_m),
+                    f(r.path_length_std_m),
+                    r.mean_abs_rotation_rad.to_string(),
+                    r.mean_return.to_string(),
+                    f(r.return_std),
+                    paper(Metric::NavTime),
+                    paper(Metric::Disc),
+                ];
+                s += &fields.join(",");
+                s.push('\n');
+            }
+        }
+        s
+    }
+
+    /// Writes eval.md, eval.csv and eval.json into `dir`.
+    pub fn write(&self, dir: &Path) -> anyhow::Result<()> {
+        std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+        for (name, text) in [
+            ("eval.md", self.markdown()),
+            ("eval.csv", self.csv()),
+            ("eval.json", serde_json::to_string_pretty(self)?),
+        ] {
+            let path = dir.join(name);
+            std::fs::write(&path, text)
+                .with_context(|| format!("cannot write {}", path.display()))?;
+        }
+        Ok(())
+    }
+}
+
+/// Quotes a CSV field when it needs it (RFC 4180).
+pub fn csv_field(s: &str) -> String {
+    if s.contains([',', '"', '\n', '\r']) {
+        format!("\"{}\"", s.replace('"', "\"\""))
+    } else {
+        s.to_string()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn wilson_matches_known_values() {
+        // 8 of 10: the textbook interval is [0.490, 0.943].
+        let [lo, hi] = wilson(8, 10);
+        assert!(
+            (lo - 0.4902).abs() < 1e-3 && (hi - 0.9433).abs() < 1e-3,
+            "{lo} {hi}"
+        );
+        assert_eq!(wilson(0, 0), [0.0, 1.0]);
+        let [lo, hi] = wilson(0, 500);
+        assert_eq!(lo, 0.0);
+        assert!(hi > 0.0 && hi < 0.01);
+        let [lo, hi] = wilson(500, 500);
+        assert!(lo > 0.99 && (hi - 1.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn t_interval() {
+        assert!((t975(10) - 2.228).abs() < 1e-9);
+        assert!((t975(60) - 2.000).abs() < 1e-3);
+        assert!((t975(1000) - 1.962).abs() < 1e-3);
+        let ci = mean_ci95(&[10.0, 12.0]).unwrap();
+        // mean 11, std √2, half = 12.706·√2/√2.
+        assert!((ci[0] - (11.0 - 12.706)).abs() < 1e-9);
+        assert!(mean_ci95(&[3.0]).is_none());
+    }
+
+    #[test]
+    fn paper_numbers_and_layout() {
+        let s: Setting = "env3-visible".parse().unwrap();
+        assert_eq!(Metric::NavTime.paper("lstm-rl", s), Some(12.32));
+        assert_eq!(Metric::Disc.paper("orca", Setting::ALL[0]), Some(0.39));
+        assert_eq!(Metric::Success.paper("fsrl", s), None);
+        assert_eq!(Metric::Disc.paper("sarl+foresight", s), None);
+        let row = paper_row(Metric::Disc, "fsrl").unwrap();
+        assert_eq!(
+            row,
+            "| FSRL (paper) | 0.01 | 0.07 | 0.04 | 0.04 | 0.06 | 0.08 | 0.07 | 0.07 |"
+        );
+        let ours = paper_layout_row(|s| (format!("{}", s.index()), Some(s.index() as f64)), 1);
+        assert_eq!(ours, " 0 | 1 | 2 | 1.0 | 3 | 4 | 5 | 4.0 |");
+    }
+
+    #[test]
+    fn csv_quotes() {
+        assert_eq!(csv_field("a,b"), "\"a,b\"");
+        assert_eq!(csv_field("say \"hi\""), "\"say \"\"hi\"\"\"");
+        assert_eq!(csv_field("plain"), "plain");
     }
 }

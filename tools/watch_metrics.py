@@ -2,6 +2,9 @@
 """Watch an fsrl run's live metrics from Python (PyPI: eclipse-zenoh, msgpack).
 
     python3 tools/watch_metrics.py --connect tcp/127.0.0.1:7447 --run local [--count N] [--timeout S]
+    python3 tools/watch_metrics.py --connect tls/10.0.0.1:7447 --run cluster \
+        --root-ca /etc/fsrl/certs/ca.crt --user monitor --password-file /etc/fsrl/monitor.password
+(the second: a client of a cluster's router over TLS with credentials, see deploy/README.md)
 
 Subscribes to fsrl/<run>/metrics/** and prints one line per message:
 <role>-<index> episodes=<n> env_steps=<n> <name>=<value> ...
@@ -27,13 +30,29 @@ def main():
     ap.add_argument("--run", default="local", help="run id")
     ap.add_argument("--count", type=int, default=0, help="exit after this many messages")
     ap.add_argument("--timeout", type=float, default=0.0, help="give up after this many seconds")
+    ap.add_argument("--root-ca", help="CA certificate (PEM) for tls/ endpoints")
+    ap.add_argument("--user", help="user name for the router's user/password authentication")
+    ap.add_argument("--password-file", help="file whose first line is the password (with --user)")
     args = ap.parse_args()
 
     conf = zenoh.Config()
-    conf.insert_json5("mode", '"peer"')
-    conf.insert_json5("connect/endpoints", json.dumps(args.connect))
-    conf.insert_json5("listen/endpoints", json.dumps(["tcp/127.0.0.1:0"]))
     conf.insert_json5("scouting/multicast/enabled", "false")
+    conf.insert_json5("connect/endpoints", json.dumps(args.connect))
+    if args.user or args.root_ca:
+        # A client of a cluster's router (deploy/router.json5).
+        conf.insert_json5("mode", '"client"')
+        if args.root_ca:
+            conf.insert_json5("transport/link/tls/root_ca_certificate", json.dumps(args.root_ca))
+        if args.user:
+            if not args.password_file:
+                ap.error("--user needs --password-file")
+            with open(args.password_file) as f:
+                password = f.readline().rstrip("\r\n")
+            conf.insert_json5("transport/auth/usrpwd/user", json.dumps(args.user))
+            conf.insert_json5("transport/auth/usrpwd/password", json.dumps(password))
+    else:
+        conf.insert_json5("mode", '"peer"')
+        conf.insert_json5("listen/endpoints", json.dumps(["tcp/127.0.0.1:0"]))
     key = f"fsrl/{args.run}/metrics/**"
     seen = 0
     deadline = time.monotonic() + args.timeout if args.timeout > 0 else None

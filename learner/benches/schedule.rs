@@ -8,7 +8,6 @@
 //!
 //! `cargo bench -p learner --bench schedule` (FSRL_SCHEDULE_RL_EPISODES overrides the 200)
 
-use std::sync::atomic::AtomicBool;
 use std::time::Instant;
 
 use learner::LearnerCore;
@@ -46,6 +45,35 @@ fn decision_ms() -> f64 {
         best = best.min(t.elapsed().as_secs_f64() * 1e3 / 100.0);
     }
     best
+}
+
+/// CPU time of this process so far (all threads, live or finished; `/proc/self/stat` utime +
+/// stime, 10 ms resolution), to see through contention on a shared machine.
+fn process_cpu_s() -> f64 {
+    let Ok(stat) = std::fs::read_to_string("/proc/self/stat") else {
+        return f64::NAN;
+    };
+    // Fields after the command name (which may contain spaces) start at field 3 (state).
+    let Some(rest) = stat.rsplit_once(')').map(|(_, r)| r) else {
+        return f64::NAN;
+    };
+    let f: Vec<&str> = rest.split_whitespace().collect();
+    let ticks = |i: usize| {
+        f.get(i)
+            .and_then(|v| v.parse::<f64>().ok())
+            .unwrap_or(f64::NAN)
+    };
+    // utime and stime are fields 14 and 15, i.e. 11 and 12 after the state field.
+    (ticks(11) + ticks(12)) / 100.0
+}
+
+fn loadavg() -> String {
+    std::fs::read_to_string("/proc/loadavg")
+        .unwrap_or_default()
+        .split_whitespace()
+        .take(3)
+        .collect::<Vec<_>>()
+        .join(" ")
 }
 
 fn main() {
@@ -95,7 +123,9 @@ fn main() {
         train.human_model.into(),
         spec.method.human_order(),
     );
+    let load_before = loadavg();
     let t = Instant::now();
+    let cpu0 = process_cpu_s();
     let (mut sim_s, mut steps) = (0.0, 0u64);
     for k in 0..rl_measured {
         let eps = core.epsilon();
@@ -117,12 +147,12 @@ fn main() {
         core.train_rl(train.rl.batches_per_episode).unwrap();
     }
     let rl_s = t.elapsed().as_secs_f64();
+    let rl_cpu_s = process_cpu_s() - cpu0;
     let per_ep = rl_s / rl_measured as f64;
     let il_total = demos_s + epoch_s * train.imitation.epochs as f64;
     let rl_total = per_ep * train.rl.episodes as f64;
     let total_h = (il_total + rl_total) / 3600.0;
     let updates = core.counters().updates as f64;
-    let _ = AtomicBool::new(false);
     println!(
         "\n== paper schedule, FSRL on env1-invisible, one process, rayon threads: {threads} =="
     );
@@ -140,6 +170,12 @@ fn main() {
         updates as u64,
         100.0 * sim_s / rl_s,
         100.0 * (rl_s - sim_s) / rl_s
+    );
+    println!(
+        "RL CPU time (all threads): {rl_cpu_s:.1} s = {:.3} s/episode, {:.2} cores busy on average | load average before {load_before}, after {}",
+        rl_cpu_s / rl_measured as f64,
+        rl_cpu_s / rl_s,
+        loadavg()
     );
     println!("extrapolated: imitation {:.2} h + RL {:.2} h = {total_h:.2} h (target <= 2 h; CrowdNav ~{CROWDNAV_SCHEDULE_H} h here = {:.1}x)", il_total / 3600.0, rl_total / 3600.0, CROWDNAV_SCHEDULE_H / total_h);
 }

@@ -67,7 +67,6 @@ pub struct LearnerCore {
     feats: Vec<f32>,
     batch: Batch,
     target_buf: Vec<f32>,
-    target_scratch: policy::Scratch,
     /// The cached targets predate the target network (refreshed before the next update).
     targets_stale: bool,
 }
@@ -128,7 +127,6 @@ impl LearnerCore {
             feats: Vec::new(),
             batch: Batch::default(),
             target_buf: Vec::new(),
-            target_scratch: policy::Scratch::default(),
             targets_stale: true,
         }
     }
@@ -378,27 +376,28 @@ impl LearnerCore {
         &mut self,
         range: std::ops::Range<usize>,
     ) -> Result<(), LearnerError> {
+        use rayon::prelude::*;
+        // Fixed chunks (not per thread), so the values do not depend on the thread count.
         const CHUNK: usize = 512;
-        let mut start = range.start;
-        while start < range.end {
-            let end = (start + CHUNK).min(range.end);
-            let (next, rewards, discounts) = self.replay.target_inputs(start..end);
-            let states = StateBatch::new(next, end - start, self.humans)?;
-            self.target_buf.resize(end - start, 0.0);
-            self.trainer.target().values_into(
-                states,
-                &mut self.target_scratch,
-                &mut self.target_buf,
-            );
-            for ((y, r), d) in self.target_buf.iter_mut().zip(rewards).zip(discounts) {
-                *y = r + d * *y;
-            }
-            if !self.target_buf.iter().all(|y| y.is_finite()) {
-                return Err(PolicyError::NonFinite("value targets").into());
-            }
-            self.replay.set_targets(start, &self.target_buf);
-            start = end;
+        let (next, rewards, discounts) = self.replay.target_inputs(range.clone());
+        let row = self.humans * FEATURE_DIM;
+        let (net, humans) = (self.trainer.target(), self.humans);
+        self.target_buf.resize(range.len(), 0.0);
+        self.target_buf
+            .par_chunks_mut(CHUNK)
+            .zip(next.par_chunks(CHUNK * row))
+            .try_for_each_init(policy::Scratch::default, |scratch, (out, next)| {
+                let states = StateBatch::new(next, out.len(), humans)?;
+                net.values_into(states, scratch, out);
+                Ok::<_, PolicyError>(())
+            })?;
+        for ((y, r), d) in self.target_buf.iter_mut().zip(rewards).zip(discounts) {
+            *y = r + d * *y;
         }
+        if !self.target_buf.iter().all(|y| y.is_finite()) {
+            return Err(PolicyError::NonFinite("value targets").into());
+        }
+        self.replay.set_targets(range.start, &self.target_buf);
         Ok(())
     }
 

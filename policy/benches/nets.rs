@@ -296,7 +296,64 @@ fn report(setup: &Setup) {
     }
 }
 
+/// CPU time of every thread of this process in ns (sum of `/proc/self/task/*/schedstat`).
+fn process_cpu_ns() -> u64 {
+    let Ok(dir) = std::fs::read_dir("/proc/self/task") else {
+        return 0;
+    };
+    dir.filter_map(|e| {
+        std::fs::read_to_string(e.ok()?.path().join("schedstat"))
+            .ok()?
+            .split_whitespace()
+            .next()?
+            .parse::<u64>()
+            .ok()
+    })
+    .sum()
+}
+
+/// `FSRL_NETS_PROFILE=<seconds>`: only learner updates as the schedule runs them ([`Trainer::fit`]
+/// on cached targets), SARL then LSTM-RL, for `perf record` and quick before/after figures:
+/// median wall and main-thread CPU time per update, and all threads' CPU per update.
+fn profile(secs: f64, setup: &Setup) {
+    let kinds: Vec<NetKind> = match std::env::var("FSRL_NETS_PROFILE_NET").as_deref() {
+        Ok("sarl") => vec![NetKind::Sarl],
+        Ok("lstm-rl") => vec![NetKind::LstmRl],
+        _ => vec![NetKind::Sarl, NetKind::LstmRl],
+    };
+    let s = StateBatch::new(&setup.batch, BATCH, HUMANS).expect("shape");
+    let targets = vec![0.1f32; BATCH];
+    for kind in kinds {
+        let mut trainer = setup.trainer(kind);
+        let inner = 20;
+        let reps = ((secs / 0.01 / inner as f64) as usize).max(5);
+        let p0 = process_cpu_ns();
+        let (w, c) = median_secs(reps, inner, || {
+            black_box(trainer.fit(s, &targets).expect("finite"));
+        });
+        let all = (process_cpu_ns() - p0) as f64 * 1e-9 / ((reps + 1) * inner) as f64;
+        println!(
+            "profile {:8} fit (100 x 10): {:.3} ms wall, {:.3} ms main-thread CPU, {:.3} ms all-threads CPU (RAYON_NUM_THREADS={})",
+            kind.name(),
+            w * 1e3,
+            c * 1e3,
+            all * 1e3,
+            std::env::var("RAYON_NUM_THREADS").unwrap_or_default()
+        );
+    }
+}
+
 fn main() {
+    if let Some(secs) = std::env::var("FSRL_NETS_PROFILE")
+        .ok()
+        .and_then(|v| v.parse::<f64>().ok())
+    {
+        if std::env::var_os("RAYON_NUM_THREADS").is_none() {
+            std::env::set_var("RAYON_NUM_THREADS", "1");
+        }
+        profile(secs, &Setup::new());
+        return;
+    }
     if std::env::var_os("RAYON_NUM_THREADS").is_none() {
         // Before rayon's global pool exists: single-threaded dfdx matrix products.
         std::env::set_var("RAYON_NUM_THREADS", "1");

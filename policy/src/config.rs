@@ -326,14 +326,12 @@ impl Mat {
         }
     }
 
-    /// Copies the values out, row-major and dense.
-    pub fn gather(&self, params: &[f32]) -> Vec<f32> {
-        let mut out = Vec::with_capacity(self.rows * self.cols);
+    /// Appends the values to `out`, row-major and dense.
+    pub fn gather_into(&self, params: &[f32], out: &mut Vec<f32>) {
         for r in 0..self.rows {
             let s = self.offset + r * self.ld;
             out.extend_from_slice(&params[s..s + self.cols]);
         }
-        out
     }
 
     /// Adds a dense row-major `rows × cols` block into its place in `flat`.

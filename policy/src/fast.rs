@@ -267,20 +267,72 @@ fn mlp1_chain_out(
     mlp_chain(x, rows, FEATURE_DIM, layers, p, true, bufs)
 }
 
-#[inline]
-fn sigmoid(x: f32) -> f32 {
-    1.0 / (1.0 + (-x).exp())
+/// `e^x`, branch-free so that loops over it vectorise: Cephes' `expf` (range reduction
+/// `x = n ln 2 + r`, `|r| ≤ ln 2 / 2`, a degree-5 polynomial, then `2^n` through the exponent
+/// bits); relative error about 2e-7. Inputs are clamped to [−87, 88], so the result is always
+/// a normal finite number (≈ 1.6e-38 below, ≈ 1.7e38 above).
+#[inline(always)]
+pub(crate) fn exp(x: f32) -> f32 {
+    const LOG2E: f32 = std::f32::consts::LOG2_E;
+    // Adding and subtracting 1.5 · 2^23 rounds to the nearest integer (|x log2 e| < 2^22).
+    const ROUND: f32 = 12_582_912.0;
+    let x = x.clamp(-87.0, 88.0);
+    let n = (x * LOG2E + ROUND) - ROUND;
+    // ln 2 in two parts (Cody–Waite), so r is exact to f32 precision.
+    let r = (x - n * 0.693_359_4) + n * 2.121_944_4e-4;
+    let mut p = 1.987_569_1e-4f32;
+    p = p * r + 1.398_199_9e-3;
+    p = p * r + 8.333_452e-3;
+    p = p * r + 4.166_579_6e-2;
+    p = p * r + 1.666_666_5e-1;
+    p = p * r + 0.5;
+    let y = p * (r * r) + r + 1.0;
+    y * f32::from_bits(((n as i32 + 127) << 23) as u32)
+}
+
+#[inline(always)]
+pub(crate) fn sigmoid(x: f32) -> f32 {
+    1.0 / (1.0 + exp(-x))
 }
 
 /// `tanh` through one `exp`: `sign(x) (1 − e^{−2|x|}) / (1 + e^{−2|x|})`. Absolute error about
-/// 1e-7 (libm's `tanhf` goes through the much slower `expm1f`).
-#[inline]
-fn tanh(x: f32) -> f32 {
-    let e = (-2.0 * x.abs()).exp();
+/// 2e-7 (libm's `tanhf` goes through the much slower `expm1f`).
+#[inline(always)]
+pub(crate) fn tanh(x: f32) -> f32 {
+    let e = exp(-2.0 * x.abs());
     ((1.0 - e) / (1.0 + e)).copysign(x)
 }
 
-/// LSTM-RL forward: `values (B)` for `states (B, N, 13)`, humans fed in the given order.
+/// One LSTM cell for one sample, hidden size `H = c.len()`: `pre` (4H, PyTorch's gate blocks
+/// i, f, g, o) is replaced by the activations σ(i), σ(f), tanh(g), σ(o); `c` holds `c_{t−1}` on
+/// entry and `c_t = f c_{t−1} + i g` on exit; `tc = tanh(c_t)`, `h = o tanh(c_t)`. Shared by
+/// inference and the training graph; vectorises.
+#[inline]
+pub(crate) fn lstm_cell(pre: &mut [f32], c: &mut [f32], tc: &mut [f32], h: &mut [f32]) {
+    let hd = c.len();
+    let (i, rest) = pre.split_at_mut(hd);
+    let (f, rest) = rest.split_at_mut(hd);
+    let (g, o) = rest.split_at_mut(hd);
+    let (o, tc, h) = (&mut o[..hd], &mut tc[..hd], &mut h[..hd]);
+    for j in 0..hd {
+        let i_g = sigmoid(i[j]);
+        let f_g = sigmoid(f[j]);
+        let g_g = tanh(g[j]);
+        let o_g = sigmoid(o[j]);
+        let c_t = f_g * c[j] + i_g * g_g;
+        let t = tanh(c_t);
+        c[j] = c_t;
+        tc[j] = t;
+        h[j] = o_g * t;
+        i[j] = i_g;
+        f[j] = f_g;
+        g[j] = g_g;
+        o[j] = o_g;
+    }
+}
+
+/// LSTM-RL forward: `values (B)` for `states (B, N, 13)`, humans fed in the given order. The
+/// input projections of all steps are one product (inputs copied time-major first).
 pub(crate) fn lstm_forward(
     ix: &LstmIndex,
     p: &[f32],
@@ -289,48 +341,45 @@ pub(crate) fn lstm_forward(
     out: &mut [f32],
 ) {
     let (b, n, hd) = (states.batch(), states.humans(), ix.hidden);
+    let g4 = 4 * hd;
     let nm = ix.mlp.len();
-    let bufs = scratch.buffers(4 + nm);
-    let (state_b, mlp_b) = bufs.split_at_mut(4);
-    let [gates, h, c, head] = state_b else {
-        unreachable!("four state buffers")
+    let bufs = scratch.buffers(6 + nm);
+    let (state_b, mlp_b) = bufs.split_at_mut(6);
+    let [x, gates, h, c, tc, head] = state_b else {
+        unreachable!("six state buffers")
     };
-    h.clear();
-    h.resize(b * hd, 0.0);
-    c.clear();
-    c.resize(b * hd, 0.0);
-    let b_ih = &p[ix.b_ih.offset..ix.b_ih.offset + 4 * hd];
-    let b_hh = &p[ix.b_hh.offset..ix.b_hh.offset + 4 * hd];
-    let bias: Vec<f32> = b_ih.iter().zip(b_hh).map(|(x, y)| x + y).collect();
     let data = states.data();
+    x.clear();
     for t in 0..n {
-        gates.clear();
-        for _ in 0..b {
-            gates.extend_from_slice(&bias);
-        }
-        // Row t of every sample: stride N·13.
-        gemm_acc(
-            b,
-            &data[t * FEATURE_DIM..],
-            n * FEATURE_DIM,
-            ix.w_ih,
-            p,
-            gates,
-        );
-        if t > 0 {
-            gemm_acc(b, h, hd, ix.w_hh, p, gates);
-        }
         for s in 0..b {
-            let g = &gates[s * 4 * hd..(s + 1) * 4 * hd];
-            let (hs, cs) = (&mut h[s * hd..(s + 1) * hd], &mut c[s * hd..(s + 1) * hd]);
-            for j in 0..hd {
-                let i_g = sigmoid(g[j]);
-                let f_g = sigmoid(g[hd + j]);
-                let g_g = tanh(g[2 * hd + j]);
-                let o_g = sigmoid(g[3 * hd + j]);
-                cs[j] = f_g * cs[j] + i_g * g_g;
-                hs[j] = o_g * tanh(cs[j]);
-            }
+            let r = (s * n + t) * FEATURE_DIM;
+            x.extend_from_slice(&data[r..r + FEATURE_DIM]);
+        }
+    }
+    let b_ih = &p[ix.b_ih.offset..ix.b_ih.offset + g4];
+    let b_hh = &p[ix.b_hh.offset..ix.b_hh.offset + g4];
+    gates.clear();
+    gates.extend(b_ih.iter().zip(b_hh).map(|(x, y)| x + y));
+    for _ in 1..n * b {
+        gates.extend_from_within(..g4);
+    }
+    gemm_acc(n * b, x, FEATURE_DIM, ix.w_ih, p, gates);
+    for v in [&mut *h, &mut *c, &mut *tc] {
+        v.clear();
+        v.resize(b * hd, 0.0);
+    }
+    for t in 0..n {
+        let pre = &mut gates[t * b * g4..(t + 1) * b * g4];
+        if t > 0 {
+            gemm_acc(b, h, hd, ix.w_hh, p, pre);
+        }
+        for (((g, cs), ts), hs) in pre
+            .chunks_exact_mut(g4)
+            .zip(c.chunks_exact_mut(hd))
+            .zip(tc.chunks_exact_mut(hd))
+            .zip(h.chunks_exact_mut(hd))
+        {
+            lstm_cell(g, cs, ts, hs);
         }
     }
     let d_in = ROBOT_DIM + hd;

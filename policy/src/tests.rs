@@ -322,3 +322,56 @@ fn small_configs_work_on_every_path() {
         check_gradients(config, 2, 3);
     }
 }
+
+/// The training path splits a batch over threads, one dfdx graph per part, and adds the parts'
+/// gradients: the result must be the whole-batch gradient (up to float reassociation), for any
+/// thread count, and the same bits again for the same thread count.
+#[test]
+fn sharded_gradients_equal_the_whole_batch_gradient() {
+    use crate::graph::{shard_count, sharded_loss_and_grad};
+    use std::sync::Arc;
+    for config in [NetConfig::sarl(), NetConfig::lstm_rl()] {
+        let net = ValueNet::new(config, 3).unwrap();
+        let (b, n) = (100, 7);
+        let data = random_states(b, n, 11);
+        let states = StateBatch::new(&data, b, n).unwrap();
+        let mut rng = ChaCha8Rng::seed_from_u64(4);
+        let targets: Vec<f32> = (0..b).map(|_| rng.gen_range(-1.0..1.0)).collect();
+        let mut whole = vec![0.0; net.num_params()];
+        let loss = mse_loss_and_grad(&net, &Cpu::default(), states, &targets, &mut whole).unwrap();
+        let flat = Arc::new(net.params().to_vec());
+        let scale = whole.iter().fold(0.0f32, |m, g| m.max(g.abs()));
+        assert!(scale > 1e-4, "gradient too small to compare: {scale}");
+        for threads in [1, 2, 3] {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap();
+            let run = || {
+                pool.install(|| {
+                    assert_eq!(shard_count(b), threads, "{threads} threads");
+                    let mut shards = Vec::new();
+                    let mut g = vec![0.0; net.num_params()];
+                    let l =
+                        sharded_loss_and_grad(&net, &flat, &mut shards, states, &targets, &mut g)
+                            .unwrap();
+                    (l, g)
+                })
+            };
+            let (l, g) = run();
+            assert!(
+                (l - loss).abs() <= 1e-5 * loss.abs().max(1.0),
+                "loss {l} vs {loss}"
+            );
+            for (i, (a, w)) in g.iter().zip(&whole).enumerate() {
+                assert!(
+                    (a - w).abs() <= 1e-4 * scale,
+                    "{threads} threads: gradient[{i}] {a:e} vs whole batch {w:e}"
+                );
+            }
+            let (l2, g2) = run();
+            assert_eq!(l.to_bits(), l2.to_bits());
+            assert!(g.iter().zip(&g2).all(|(a, b)| a.to_bits() == b.to_bits()));
+        }
+    }
+}

@@ -1,22 +1,26 @@
 //! The training step: mean-squared error against scalar targets, dfdx autodiff for the
 //! gradient, Adam on the flat weights, and a target network for V-learning targets.
 
-use dfdx::prelude::Cpu;
+use std::sync::Arc;
 
-use crate::graph::mse_loss_and_grad;
+use crate::graph::{sharded_loss_and_grad, Shard};
 use crate::optim::{Adam, AdamConfig};
 use crate::{PolicyError, Scratch, StateBatch, ValueNet};
 
 /// An online network, its target copy and the online network's Adam state.
 ///
-/// Gradients come from dfdx, whose matrix products use `rayon::current_num_threads()` threads;
-/// target values use the single-threaded inference path.
+/// Gradients come from dfdx graphs over parts of the batch run in parallel on
+/// `rayon::current_num_threads()` threads ([`crate::graph`]); a run is reproducible bit for bit
+/// for a given thread count. Target values use the single-threaded inference path.
 #[derive(Debug)]
 pub struct Trainer {
     online: ValueNet,
     target: ValueNet,
     adam: Adam,
-    dev: Cpu,
+    /// Per-thread graph state, reused between updates.
+    shards: Vec<Shard>,
+    /// Copy of the online weights that the graph's backward closures read.
+    snapshot: Arc<Vec<f32>>,
     grad: Vec<f32>,
     scratch: Scratch,
     td_targets: Vec<f32>,
@@ -55,7 +59,8 @@ impl Trainer {
             online,
             target,
             adam,
-            dev: Cpu::default(),
+            shards: Vec::new(),
+            snapshot: Arc::new(Vec::new()),
             grad,
             scratch: Scratch::default(),
             td_targets: Vec::new(),
@@ -97,7 +102,22 @@ impl Trainer {
     ///
     /// `states`: `(B, N, 13)`; `targets`: `(B)`.
     pub fn fit(&mut self, states: StateBatch<'_>, targets: &[f32]) -> Result<f32, PolicyError> {
-        let loss = mse_loss_and_grad(&self.online, &self.dev, states, targets, &mut self.grad)?;
+        // The graph's closures are gone after the last update, so the snapshot is ours again.
+        match Arc::get_mut(&mut self.snapshot) {
+            Some(v) => {
+                v.clear();
+                v.extend_from_slice(self.online.params());
+            }
+            None => self.snapshot = Arc::new(self.online.params().to_vec()),
+        }
+        let loss = sharded_loss_and_grad(
+            &self.online,
+            &self.snapshot,
+            &mut self.shards,
+            states,
+            targets,
+            &mut self.grad,
+        )?;
         if !loss.is_finite() {
             return Err(PolicyError::NonFinite("loss"));
         }

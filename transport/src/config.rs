@@ -1,5 +1,6 @@
 //! Transport configuration (serde, `deny_unknown_fields`; roles embed it in their TOML).
 
+use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 use proto::{RunId, SenderId};
@@ -46,9 +47,72 @@ pub struct ZenohConfig {
     /// How long a blocked reliable publication waits for a full receiver before zenoh closes
     /// the link (zenoh `congestion_control/block/wait_before_close`), in ms.
     pub block_timeout_ms: u64,
+    /// TLS for `tls/...` endpoints (`[transport.zenoh.tls]`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub tls: Option<ZenohTls>,
+    /// User/password authentication towards the router (`[transport.zenoh.auth]`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub auth: Option<ZenohAuth>,
     /// Extra raw zenoh settings `(key path, JSON5 value)`, applied last, e.g.
     /// `("transport/link/tx/lease", "20000")`.
     pub overrides: Vec<(String, String)>,
+}
+
+/// TLS settings (zenoh `transport/link/tls/*`). Relative paths are resolved against the
+/// directory of the config file that holds them ([`ZenohConfig::resolve_paths`]).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ZenohTls {
+    /// PEM certificate of the certificate authority that signed the router's (and, with
+    /// mutual TLS, the other processes') certificates.
+    pub root_ca: PathBuf,
+    /// This process's own PEM certificate, for mutual TLS (with `key`); its common name is the
+    /// subject the router's access control sees as `cert_common_names`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub cert: Option<PathBuf>,
+    /// The PEM private key of `cert`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub key: Option<PathBuf>,
+    /// Check that the router's certificate names the host or address connected to (default
+    /// true; turn off only for tests with certificates that do not name the host).
+    #[serde(default = "yes")]
+    pub verify_name: bool,
+}
+
+fn yes() -> bool {
+    true
+}
+
+/// User/password authentication (zenoh `transport/auth/usrpwd`). The password lives in its
+/// own file (first line; never in the TOML), readable only by the service's user.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ZenohAuth {
+    /// User name; the router's access control grants rights by it (`learner`, `actor`,
+    /// `evaluator`, `monitor` in `deploy/router.json5`).
+    pub user: String,
+    /// File whose first line is the password.
+    pub password_file: PathBuf,
+}
+
+impl ZenohAuth {
+    /// The password: the first line of `password_file`, without its line end.
+    pub fn read_password(&self) -> Result<String, String> {
+        let text = std::fs::read_to_string(&self.password_file).map_err(|e| {
+            format!(
+                "cannot read the password file {}: {e}",
+                self.password_file.display()
+            )
+        })?;
+        let line = text.lines().next().unwrap_or("").trim_end_matches('\r');
+        if line.is_empty() {
+            return Err(format!(
+                "the password file {} is empty",
+                self.password_file.display()
+            ));
+        }
+        Ok(line.to_string())
+    }
 }
 
 impl Default for ZenohConfig {
@@ -59,6 +123,8 @@ impl Default for ZenohConfig {
             connect: Vec::new(),
             multicast_scouting: false,
             block_timeout_ms: 10_000,
+            tls: None,
+            auth: None,
             overrides: Vec::new(),
         }
     }
@@ -84,42 +150,160 @@ impl ZenohConfig {
         }
     }
 
+    /// Makes the TLS and password file paths absolute, relative to `base` (the directory of
+    /// the config file they were read from).
+    pub fn resolve_paths(&mut self, base: &Path) {
+        let fix = |p: &mut PathBuf| {
+            if p.is_relative() {
+                *p = base.join(&*p);
+            }
+        };
+        if let Some(t) = &mut self.tls {
+            fix(&mut t.root_ca);
+            if let Some(c) = &mut t.cert {
+                fix(c);
+            }
+            if let Some(k) = &mut t.key {
+                fix(k);
+            }
+        }
+        if let Some(a) = &mut self.auth {
+            fix(&mut a.password_file);
+        }
+    }
+
+    /// Every problem of the zenoh settings (files that cannot be read, TLS endpoints without
+    /// a certificate authority, ...).
+    pub fn problems(&self) -> Vec<String> {
+        let mut problems = Vec::new();
+        if self.mode == ZenohMode::Client && self.connect.is_empty() {
+            problems.push("zenoh client mode needs a `connect` endpoint (the router)".into());
+        }
+        let uses_tls = self
+            .listen
+            .iter()
+            .chain(&self.connect)
+            .any(|e| e.starts_with("tls/"));
+        let readable = |what: &str, p: &Path, problems: &mut Vec<String>| {
+            if let Err(e) = std::fs::File::open(p) {
+                problems.push(format!("{what}: cannot read {}: {e}", p.display()));
+            }
+        };
+        match &self.tls {
+            None if uses_tls => problems.push(
+                "a tls/ endpoint needs [transport.zenoh.tls] root_ca (the CA that signed the router's certificate)".into(),
+            ),
+            None => {}
+            Some(t) => {
+                readable("zenoh.tls.root_ca", &t.root_ca, &mut problems);
+                match (&t.cert, &t.key) {
+                    (Some(c), Some(k)) => {
+                        readable("zenoh.tls.cert", c, &mut problems);
+                        readable("zenoh.tls.key", k, &mut problems);
+                    }
+                    (None, None) => {}
+                    _ => problems.push(
+                        "zenoh.tls.cert and zenoh.tls.key go together (mutual TLS)".into(),
+                    ),
+                }
+                let listens_tls = self.listen.iter().any(|e| e.starts_with("tls/"));
+                if listens_tls && t.cert.is_none() {
+                    problems.push(
+                        "listening on a tls/ endpoint needs zenoh.tls.cert and zenoh.tls.key".into(),
+                    );
+                }
+            }
+        }
+        if let Some(a) = &self.auth {
+            if a.user.is_empty() || a.user.contains(':') || a.user.chars().any(char::is_whitespace)
+            {
+                problems.push(format!(
+                    "zenoh.auth.user {:?} must be non-empty, without ':' or spaces",
+                    a.user
+                ));
+            }
+            if let Err(e) = a.read_password() {
+                problems.push(format!("zenoh.auth.password_file: {e}"));
+            }
+        }
+        for (k, _) in &self.overrides {
+            if k.starts_with("transport/auth") {
+                problems.push(format!(
+                    "zenoh.overrides must not set {k}: use [transport.zenoh.auth] (password in a file)"
+                ));
+            }
+        }
+        problems
+    }
+
     pub(crate) fn to_zenoh(
         &self,
         max_message_bytes: usize,
     ) -> Result<zenoh::Config, TransportError> {
-        let mut c = zenoh::Config::default();
-        let json = |v: &[String]| {
-            serde_json::to_string(v).map_err(|e| TransportError::Config(e.to_string()))
-        };
-        let mut set = |key: &str, value: String| {
+        fn set(c: &mut zenoh::Config, key: &str, value: String) -> Result<(), TransportError> {
             c.insert_json5(key, &value)
                 .map_err(|e| TransportError::Config(format!("zenoh {key} = {value}: {e}")))
+        }
+        fn json<T: Serialize + ?Sized>(v: &T) -> Result<String, TransportError> {
+            serde_json::to_string(v).map_err(|e| TransportError::Config(e.to_string()))
+        }
+        let mut c = zenoh::Config::default();
+        let mode = match self.mode {
+            ZenohMode::Peer => "\"peer\"",
+            ZenohMode::Client => "\"client\"",
         };
+        set(&mut c, "mode", mode.into())?;
+        set(&mut c, "listen/endpoints", json(&self.listen)?)?;
+        set(&mut c, "connect/endpoints", json(&self.connect)?)?;
         set(
-            "mode",
-            match self.mode {
-                ZenohMode::Peer => "\"peer\"".into(),
-                ZenohMode::Client => "\"client\"".into(),
-            },
-        )?;
-        set("listen/endpoints", json(&self.listen)?)?;
-        set("connect/endpoints", json(&self.connect)?)?;
-        set(
+            &mut c,
             "scouting/multicast/enabled",
             self.multicast_scouting.to_string(),
         )?;
         set(
+            &mut c,
             "transport/link/tx/queue/congestion_control/block/wait_before_close",
             (self.block_timeout_ms.saturating_mul(1000)).to_string(),
         )?;
         // Reject oversized messages at defragmentation already (default would be 1 GiB).
         set(
+            &mut c,
             "transport/link/rx/max_message_size",
             (max_message_bytes + 64 * 1024).to_string(),
         )?;
+        if let Some(t) = &self.tls {
+            let path = |p: &Path| json(&p.to_string_lossy());
+            set(
+                &mut c,
+                "transport/link/tls/root_ca_certificate",
+                path(&t.root_ca)?,
+            )?;
+            set(
+                &mut c,
+                "transport/link/tls/verify_name_on_connect",
+                t.verify_name.to_string(),
+            )?;
+            if let (Some(cert), Some(key)) = (&t.cert, &t.key) {
+                set(&mut c, "transport/link/tls/enable_mtls", "true".into())?;
+                for (k, p) in [
+                    ("connect_certificate", cert),
+                    ("connect_private_key", key),
+                    ("listen_certificate", cert),
+                    ("listen_private_key", key),
+                ] {
+                    set(&mut c, &format!("transport/link/tls/{k}"), path(p)?)?;
+                }
+            }
+        }
+        if let Some(a) = &self.auth {
+            let password = a.read_password().map_err(TransportError::Config)?;
+            set(&mut c, "transport/auth/usrpwd/user", json(&a.user)?)?;
+            // Not through `set`: its error message would show the value.
+            c.insert_json5("transport/auth/usrpwd/password", &json(&password)?)
+                .map_err(|_| TransportError::Config("zenoh rejected the password".into()))?;
+        }
         for (k, v) in &self.overrides {
-            set(k, v.clone())?;
+            set(&mut c, k, v.clone())?;
         }
         Ok(c)
     }
@@ -230,9 +414,7 @@ impl TransportConfig {
         if self.subscriber_queue == 0 {
             problems.push("subscriber_queue must be positive".into());
         }
-        if self.zenoh.mode == ZenohMode::Client && self.zenoh.connect.is_empty() {
-            problems.push("zenoh client mode needs a `connect` endpoint (the router)".into());
-        }
+        problems.extend(self.zenoh.problems());
         let i = &self.iceoryx2;
         if i.max_processes < 2 {
             problems.push("iceoryx2.max_processes must be at least 2".into());
@@ -260,5 +442,129 @@ impl TransportConfig {
         } else {
             Err(TransportError::Config(problems.join("; ")))
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A scratch directory removed on drop.
+    struct Scratch(PathBuf);
+    impl Scratch {
+        fn new(tag: &str) -> Self {
+            let p = std::env::temp_dir().join(format!("fsrl-zcfg-{tag}-{}", std::process::id()));
+            std::fs::create_dir_all(&p).unwrap();
+            Self(p)
+        }
+    }
+    impl Drop for Scratch {
+        fn drop(&mut self) {
+            let _ = std::fs::remove_dir_all(&self.0);
+        }
+    }
+
+    fn secured(dir: &Path) -> ZenohConfig {
+        let mut z = ZenohConfig::client("tls/10.0.0.1:7447");
+        z.tls = Some(ZenohTls {
+            root_ca: "certs/ca.crt".into(),
+            cert: None,
+            key: None,
+            verify_name: true,
+        });
+        z.auth = Some(ZenohAuth {
+            user: "actor".into(),
+            password_file: "actor.password".into(),
+        });
+        z.resolve_paths(dir);
+        z
+    }
+
+    #[test]
+    fn relative_paths_resolve_against_the_config_directory() {
+        let z = secured(Path::new("/etc/fsrl"));
+        let t = z.tls.as_ref().unwrap();
+        assert_eq!(t.root_ca, Path::new("/etc/fsrl/certs/ca.crt"));
+        let a = z.auth.as_ref().unwrap();
+        assert_eq!(a.password_file, Path::new("/etc/fsrl/actor.password"));
+        let mut abs = z.clone();
+        abs.resolve_paths(Path::new("/elsewhere"));
+        assert_eq!(abs, z, "absolute paths stay as they are");
+    }
+
+    #[test]
+    fn tls_and_credentials_become_zenoh_settings() {
+        let s = Scratch::new("ok");
+        std::fs::create_dir_all(s.0.join("certs")).unwrap();
+        std::fs::write(s.0.join("certs/ca.crt"), "pem").unwrap();
+        std::fs::write(s.0.join("actor.password"), "s3cret\n").unwrap();
+        let z = secured(&s.0);
+        assert!(z.problems().is_empty(), "{:?}", z.problems());
+        let c = z.to_zenoh(1 << 20).unwrap();
+        let get = |k: &str| c.get_json(k).unwrap();
+        assert_eq!(get("mode"), "\"client\"");
+        assert_eq!(
+            get("transport/link/tls/root_ca_certificate"),
+            format!("\"{}\"", s.0.join("certs/ca.crt").display())
+        );
+        assert_eq!(get("transport/auth/usrpwd/user"), "\"actor\"");
+        assert_eq!(get("transport/auth/usrpwd/password"), "\"s3cret\"");
+        assert_ne!(
+            get("transport/link/tls/enable_mtls"),
+            "true",
+            "no client certificate"
+        );
+        // Mutual TLS: the client certificate and key for both sides of a link.
+        let mut m = z.clone();
+        let t = m.tls.as_mut().unwrap();
+        t.cert = Some(s.0.join("certs/ca.crt"));
+        t.key = Some(s.0.join("certs/ca.crt"));
+        let c = m.to_zenoh(1 << 20).unwrap();
+        assert_eq!(
+            c.get_json("transport/link/tls/enable_mtls").unwrap(),
+            "true"
+        );
+        assert!(c
+            .get_json("transport/link/tls/connect_certificate")
+            .unwrap()
+            .contains("ca.crt"));
+        // The serialised config names the file, never the password.
+        let text = serde_json::to_string(&z).unwrap();
+        assert!(text.contains("actor.password") && !text.contains("s3cret"));
+    }
+
+    #[test]
+    fn unreadable_files_and_half_settings_are_problems_naming_the_paths() {
+        let s = Scratch::new("bad");
+        let mut z = secured(&s.0);
+        z.tls.as_mut().unwrap().cert = Some(s.0.join("me.crt"));
+        let p = z.problems().join("\n");
+        assert!(
+            p.contains(&*s.0.join("certs/ca.crt").to_string_lossy()),
+            "{p}"
+        );
+        assert!(
+            p.contains(&*s.0.join("actor.password").to_string_lossy()),
+            "{p}"
+        );
+        assert!(p.contains("go together"), "{p}");
+        assert!(matches!(
+            z.to_zenoh(1 << 20),
+            Err(TransportError::Config(_))
+        ));
+
+        let mut plain = ZenohConfig::client("tls/10.0.0.1:7447");
+        assert!(
+            plain.problems()[0].contains("root_ca"),
+            "{:?}",
+            plain.problems()
+        );
+        plain
+            .overrides
+            .push(("transport/auth/usrpwd/password".into(), "\"x\"".into()));
+        assert!(plain
+            .problems()
+            .iter()
+            .any(|p| p.contains("password in a file")));
     }
 }

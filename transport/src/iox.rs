@@ -8,6 +8,7 @@
 //! latest-value publisher then calls `update_connections`, which hands the subscriber the
 //! current value at once (iceoryx2 delivers history only from the publisher side).
 
+use std::fmt;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::thread::JoinHandle;
@@ -432,7 +433,7 @@ impl IoxSubscriber {
     /// the sample is borrowed from shared memory). Returns whether a sample was handed over.
     pub(crate) fn try_take<R>(
         &self,
-        mut f: impl FnMut(&[u8], &str) -> R,
+        mut f: impl FnMut(&[u8], &dyn fmt::Display) -> R,
     ) -> Result<Option<R>, TransportError> {
         loop {
             let Some(sample) = self.subscriber.receive().map_err(iox_err("receive"))? else {
@@ -443,7 +444,8 @@ impl IoxSubscriber {
                     continue;
                 }
             }
-            let source = format!("iceoryx2 publisher {:?}", sample.origin());
+            // Formatted only if the message is rejected (not once per message).
+            let source = Origin(sample.origin());
             return Ok(Some(f(sample.payload(), &source)));
         }
     }
@@ -462,7 +464,7 @@ impl IoxSubscriber {
     pub(crate) fn recv_until<T>(
         &self,
         deadline: Instant,
-        mut f: impl FnMut(&[u8], &str) -> Option<T>,
+        mut f: impl FnMut(&[u8], &dyn fmt::Display) -> Option<T>,
     ) -> Result<Option<T>, TransportError> {
         loop {
             while let Some(r) = self.try_take(&mut f)? {
@@ -476,5 +478,14 @@ impl IoxSubscriber {
             }
             self.wait(deadline - now)?;
         }
+    }
+}
+
+/// The publisher of a received sample, as rejection logs name it.
+struct Origin<T>(T);
+
+impl<T: fmt::Debug> fmt::Display for Origin<T> {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "iceoryx2 publisher {:?}", self.0)
     }
 }

@@ -50,6 +50,7 @@ mod reject;
 mod zenoh_impl;
 
 use std::collections::{BTreeSet, VecDeque};
+use std::fmt;
 use std::hash::{BuildHasher, Hasher};
 use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
 use std::sync::{Arc, Condvar, Mutex, MutexGuard};
@@ -58,7 +59,9 @@ use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 use proto::{keys, Body, Delivery, Member, Message, Plane, RunId, SenderId, Topic};
 use zenoh::sample::SampleKind;
 
-pub use config::{DataPlane, IceoryxConfig, TransportConfig, ZenohConfig, ZenohMode};
+pub use config::{
+    DataPlane, IceoryxConfig, TransportConfig, ZenohAuth, ZenohConfig, ZenohMode, ZenohTls,
+};
 pub use error::TransportError;
 pub use iox::StaleCleanup;
 
@@ -361,6 +364,9 @@ struct Stamp {
     transport: Transport,
     seq: AtomicU64,
     last_len: AtomicUsize,
+    /// Encode buffer reused by the iceoryx2 path, which copies the bytes into shared memory
+    /// (zenoh takes ownership of a fresh buffer instead).
+    scratch: Mutex<Vec<u8>>,
 }
 
 impl Stamp {
@@ -369,22 +375,36 @@ impl Stamp {
             transport: t.clone(),
             seq: AtomicU64::new(0),
             last_len: AtomicUsize::new(256),
+            scratch: Mutex::new(Vec::new()),
         }
     }
 
-    fn encode<M: Body>(
-        &self,
-        policy_version: u64,
-        body: &M,
-    ) -> Result<(u64, Vec<u8>), TransportError> {
+    /// The next header: sequence number +1 per call, `policy_version` as given.
+    fn header<M: Body>(&self, policy_version: u64) -> proto::Header {
         let seq = self.seq.fetch_add(1, Ordering::Relaxed);
-        let header = proto::Header::new::<M>(
+        proto::Header::new::<M>(
             self.transport.run().clone(),
             self.transport.sender(),
             seq,
             policy_version,
-        );
-        Ok((seq, self.encode_header(&header, body)?))
+        )
+    }
+
+    /// Encodes into the reused scratch buffer and hands the bytes to `send`.
+    fn with_encoded<M: Body, R>(
+        &self,
+        header: &proto::Header,
+        body: &M,
+        send: impl FnOnce(&[u8]) -> Result<R, TransportError>,
+    ) -> Result<R, TransportError> {
+        let mut buf = lock(&self.scratch);
+        proto::encode_into(
+            header,
+            body,
+            &mut buf,
+            self.transport.inner.config.max_message_bytes,
+        )?;
+        send(&buf)
     }
 
     fn encode_header<M: Body>(
@@ -421,16 +441,24 @@ impl<M: Body> Publisher<M> {
     /// sends `body`. Returns the sequence number. On a reliable topic this blocks while a
     /// receiver's queue is full (up to the configured timeout).
     pub fn publish(&self, policy_version: u64, body: &M) -> Result<u64, TransportError> {
-        let (seq, bytes) = self.stamp.encode(policy_version, body)?;
-        self.send(bytes)?;
-        Ok(seq)
+        let header = self.stamp.header::<M>(policy_version);
+        self.send_encoded(&header, body)?;
+        Ok(header.seq)
     }
 
     /// Sends a message with its own header (e.g. re-sending an unacknowledged episode with its
     /// original sequence number).
     pub fn publish_message(&self, message: &Message<M>) -> Result<(), TransportError> {
-        let bytes = self.stamp.encode_header(&message.header, &message.body)?;
-        self.send(bytes)
+        self.send_encoded(&message.header, &message.body)
+    }
+
+    fn send_encoded(&self, header: &proto::Header, body: &M) -> Result<(), TransportError> {
+        match &self.backend {
+            PubBackend::Zenoh(p) => zenoh_impl::put(p, self.stamp.encode_header(header, body)?),
+            PubBackend::Iox(p) => self
+                .stamp
+                .with_encoded(header, body, |bytes| p.send(bytes).map(|_| ())),
+        }
     }
 
     /// Sends pre-encoded bytes as they are (no validation). For tests and bridges only.
@@ -483,16 +511,21 @@ impl Receiver {
         }
     }
 
-    fn accept<M: Body>(&self, bytes: &[u8], source: &str) -> Option<Message<M>> {
+    /// Decodes and checks one message; `source` (who sent it) is formatted only when the
+    /// message is rejected.
+    fn accept<M: Body>(&self, bytes: &[u8], source: &dyn fmt::Display) -> Option<Message<M>> {
         match proto::decode_with_limit::<M>(bytes, self.limit) {
             Ok(m) if m.header.run == self.run => Some(m),
             Ok(m) => {
-                self.rejected
-                    .reject(source, &Rejection::WrongRun(m.header.run.to_string()));
+                self.rejected.reject(
+                    &source.to_string(),
+                    &Rejection::WrongRun(m.header.run.to_string()),
+                );
                 None
             }
             Err(e) => {
-                self.rejected.reject(source, &Rejection::Decode(e));
+                self.rejected
+                    .reject(&source.to_string(), &Rejection::Decode(e));
                 None
             }
         }
@@ -598,14 +631,15 @@ pub struct LatestPublisher<M> {
 impl<M: Body> LatestPublisher<M> {
     /// Publishes a new current value; returns its sequence number.
     pub fn publish(&self, policy_version: u64, body: &M) -> Result<u64, TransportError> {
-        let (seq, bytes) = self.stamp.encode(policy_version, body)?;
+        let header = self.stamp.header::<M>(policy_version);
         match &self.backend {
-            LatestPubBackend::Zenoh(p) => p.put(bytes)?,
+            LatestPubBackend::Zenoh(p) => p.put(self.stamp.encode_header(&header, body)?)?,
             LatestPubBackend::Iox(p) => {
-                p.send(&bytes)?;
+                self.stamp
+                    .with_encoded(&header, body, |bytes| p.send(bytes))?;
             }
         }
-        Ok(seq)
+        Ok(header.seq)
     }
 
     /// Whether at least one subscriber of this topic is known to exist.

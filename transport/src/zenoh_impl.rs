@@ -81,9 +81,12 @@ pub(crate) fn declare_subscriber(
 }
 
 /// The payload bytes of a sample and its key (the "source" used for rejection logs).
-pub(crate) fn with_payload<R>(sample: &Sample, f: impl FnOnce(&[u8], &str) -> R) -> R {
+pub(crate) fn with_payload<R>(
+    sample: &Sample,
+    f: impl FnOnce(&[u8], &dyn std::fmt::Display) -> R,
+) -> R {
     let bytes = sample.payload().to_bytes();
-    f(&bytes, sample.key_expr().as_str())
+    f(&bytes, &sample.key_expr().as_str())
 }
 
 /// Publisher of a latest-value topic: a publisher plus a queryable that answers late joiners
@@ -160,8 +163,8 @@ impl LatestSubscriber {
     pub(crate) fn declare(
         session: &Session,
         key: &str,
-        on_live: impl Fn(&[u8], &str) + Send + Sync + 'static,
-        on_initial: impl Fn(&[u8], &str) + Send + Sync + 'static,
+        on_live: impl Fn(&[u8], &dyn std::fmt::Display) + Send + Sync + 'static,
+        on_initial: impl Fn(&[u8], &dyn std::fmt::Display) + Send + Sync + 'static,
     ) -> Result<Self, TransportError> {
         let subscriber = session
             .declare_subscriber(key.to_string())

@@ -69,7 +69,7 @@ fn metric_panel<DB: DrawingBackend>(
         let (x0, x1) = (j as f64 + 0.25, j as f64 + 0.75);
         let mean = if v.mean.is_finite() { v.mean } else { 0.0 };
         chart.draw_series(std::iter::once(Rectangle::new(
-            [(x0, 0.0), (x1, mean)],
+            [(x0, 0.0), (x1, mean.max(top * 0.012))],
             color.filled(),
         )))?;
         if v.hi > v.lo {

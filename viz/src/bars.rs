@@ -91,8 +91,9 @@ pub(crate) fn outcome_panel<DB: DrawingBackend>(
             let x0 = j as f64 + 0.11 + k as f64 * 0.26;
             let x1 = x0 + 0.26;
             let v = if iv.mean.is_finite() { iv.mean } else { 0.0 };
+            // A zero rate still shows as a hairline bar, so "0" never looks like "missing".
             chart.draw_series(std::iter::once(Rectangle::new(
-                [(x0, 0.0), (x1, v)],
+                [(x0, 0.0), (x1, v.max(0.012))],
                 color.filled(),
             )))?;
             if iv.hi > iv.lo {

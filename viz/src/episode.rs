@@ -74,14 +74,23 @@ impl EpisodeTrace {
             .find_map(|f| f.attention.as_deref())
     }
 
-    fn max_attention(&self, frames: &[usize]) -> f64 {
-        frames
+    /// The colour scale of the attention shown at `frames`: from the smallest to the largest
+    /// weight (from 0 when they are all equal).
+    fn attention_range(&self, frames: &[usize]) -> (f64, f64) {
+        let ws: Vec<f64> = frames
             .iter()
             .filter_map(|&k| self.attention_at(k))
             .flatten()
             .copied()
             .filter(|w| w.is_finite())
-            .fold(0.0, f64::max)
+            .collect();
+        let hi = ws.iter().copied().fold(0.0, f64::max);
+        let lo = ws.iter().copied().fold(hi, f64::min);
+        if hi - lo > 1e-3 {
+            (lo, hi)
+        } else {
+            (0.0, hi.max(1e-9))
+        }
     }
 }
 
@@ -123,17 +132,20 @@ fn star(c: (f64, f64), outer: f64) -> Vec<(f64, f64)> {
 
 type Chart<'a, DB> = ChartContext<'a, DB, Cartesian2d<RangedCoordf64, RangedCoordf64>>;
 
-/// Draws the scene at frame `k` on `area`; `max_w` is the top of the attention colour scale.
+/// Draws the scene at frame `k` on `area`; `range` is the attention colour scale.
 fn scene<DB: DrawingBackend>(
     area: &DrawingArea<DB, Shift>,
     trace: &EpisodeTrace,
     k: usize,
-    max_w: f64,
+    range: (f64, f64),
     caption: &str,
     small: bool,
 ) -> Result<(), DrawError> {
-    let mut chart: Chart<DB> = ChartBuilder::on(area)
-        .caption(caption, style::bold(if small { 15.0 } else { 17.0 }))
+    let mut builder = ChartBuilder::on(area);
+    if !caption.is_empty() {
+        builder.caption(caption, style::bold(if small { 15.0 } else { 17.0 }));
+    }
+    let mut chart: Chart<DB> = builder
         .margin(8)
         .x_label_area_size(if small { 22 } else { 36 })
         .y_label_area_size(if small { 28 } else { 40 })
@@ -196,7 +208,7 @@ fn scene<DB: DrawingBackend>(
         let p = now.humans[i];
         let weight = attention.and_then(|a| a.get(i).copied());
         let fill = match weight {
-            Some(w) => style::sequential(if max_w > 0.0 { w / max_w } else { 0.0 }),
+            Some(w) => style::sequential((w - range.0) / (range.1 - range.0)),
             None if h.standing => STANDING,
             None => style::palette(i),
         };
@@ -250,7 +262,7 @@ fn scene<DB: DrawingBackend>(
 /// The attention colour scale, drawn vertically in `area`.
 fn colour_bar<DB: DrawingBackend>(
     area: &DrawingArea<DB, Shift>,
-    max_w: f64,
+    range: (f64, f64),
 ) -> Result<(), DrawError> {
     let (_, h) = area.dim_in_pixel();
     let (top, bottom) = (60, h as i32 - 60);
@@ -273,7 +285,7 @@ fn colour_bar<DB: DrawingBackend>(
     area.draw(&Rectangle::new([(x0, top), (x0 + 22, bottom)], BLACK))?;
     for (t, y) in [(0.0, bottom), (0.5, (top + bottom) / 2), (1.0, top)] {
         area.draw(&Text::new(
-            format!("{:.2}", t * max_w),
+            format!("{:.3}", range.0 + t * (range.1 - range.0)),
             (x0 + 28, y),
             style::font(13.0).pos(Pos::new(HPos::Left, VPos::Center)),
         ))?;
@@ -332,17 +344,17 @@ impl Figure for Trajectory {
         style::legend_row(&legend, &legend_items(trace))?;
         let (panels_area, foot) = body.split_vertically(PANEL);
         let ks = self.frames();
-        let max_w = trace.max_attention(&ks);
+        let range = trace.attention_range(&ks);
         let bar = if trace.has_attention() { BAR_W } else { 0 };
         let (w, _) = panels_area.dim_in_pixel();
         let (panels_area, bar_area) = panels_area.split_horizontally(w - bar);
         let panels = panels_area.split_evenly((1, ks.len()));
         for (panel, &k) in panels.iter().zip(&ks) {
             let t = trace.frames.get(k).map_or(0.0, |f| f.time_s);
-            scene(panel, trace, k, max_w, &format!("t = {t:.2} s"), false)?;
+            scene(panel, trace, k, range, &format!("t = {t:.2} s"), false)?;
         }
         if bar > 0 {
-            colour_bar(&bar_area, max_w)?;
+            colour_bar(&bar_area, range)?;
         }
         let (fw, _) = foot.dim_in_pixel();
         foot.draw(&Text::new(
@@ -357,13 +369,14 @@ impl Figure for Trajectory {
     }
 }
 
-/// Writes the episode as an animated GIF (one frame per step, the last held for
-/// [`GIF_HOLD_FRAMES`] frames), `side` pixels wide; returns the path.
+/// Writes the episode as an animated GIF (one frame every `stride` steps and the final one, the
+/// last held for [`GIF_HOLD_FRAMES`] frames), the scene `side` pixels wide; returns the path.
 pub fn save_gif(
     trace: &EpisodeTrace,
     path: &Path,
     side: u32,
     frame_delay_ms: u32,
+    stride: usize,
 ) -> Result<PathBuf, VizError> {
     fonts::ensure()?;
     if trace.frames.is_empty() {
@@ -380,12 +393,14 @@ pub fn save_gif(
     let bar = if trace.has_attention() { 80 } else { 0 };
     let size = (side + bar, side + 34);
     let all: Vec<usize> = (0..trace.frames.len()).collect();
-    let max_w = trace.max_attention(&all);
+    let range = trace.attention_range(&all);
     let root = BitMapBackend::gif(path, size, frame_delay_ms)
         .map_err(|e| draw_err(e.to_string()))?
         .into_drawing_area();
     let last = trace.frames.len() - 1;
-    let frames = (0..trace.frames.len()).chain(std::iter::repeat_n(last, GIF_HOLD_FRAMES));
+    let frames = (0..last)
+        .step_by(stride.max(1))
+        .chain(std::iter::repeat_n(last, GIF_HOLD_FRAMES + 1));
     for k in frames {
         let draw = || -> Result<(), DrawError> {
             root.fill(&WHITE)?;
@@ -402,9 +417,9 @@ pub fn save_gif(
                 style::bold(14.0).pos(Pos::new(HPos::Center, VPos::Center)),
             ))?;
             let (scene_area, bar_area) = rest.split_horizontally(side);
-            scene(&scene_area, trace, k, max_w, "", true)?;
+            scene(&scene_area, trace, k, range, "", true)?;
             if bar > 0 {
-                colour_bar(&bar_area, max_w)?;
+                colour_bar(&bar_area, range)?;
             }
             root.present()?;
             Ok(())

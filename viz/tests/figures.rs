@@ -292,7 +292,7 @@ fn trajectory_shows_every_human_at_every_chosen_time() {
 fn gif_has_a_frame_per_step_plus_the_hold() {
     let (_keep, dir) = out_dir();
     let t = trace(true);
-    let path = save_gif(&t, &dir.join("episode.gif"), 300, 100).unwrap();
+    let path = save_gif(&t, &dir.join("episode.gif"), 300, 100, 1).unwrap();
     let mut opts = gif::DecodeOptions::new();
     opts.set_color_output(gif::ColorOutput::RGBA);
     let mut d = opts.read_info(std::fs::File::open(&path).unwrap()).unwrap();
@@ -303,9 +303,19 @@ fn gif_has_a_frame_per_step_plus_the_hold() {
         frames += 1;
     }
     assert_eq!(frames, t.frames.len() + viz::GIF_HOLD_FRAMES);
+    // Every third step: frames 0, 3, ..., 27 of 0..30, then the last one held.
+    let path = save_gif(&t, &dir.join("episode-stride.gif"), 200, 100, 3).unwrap();
+    let mut d = gif::DecodeOptions::new()
+        .read_info(std::fs::File::open(&path).unwrap())
+        .unwrap();
+    let mut strided = 0;
+    while d.read_next_frame().unwrap().is_some() {
+        strided += 1;
+    }
+    assert_eq!(strided, 10 + 1 + viz::GIF_HOLD_FRAMES);
     let empty = EpisodeTrace {
         frames: Vec::new(),
         ..t
     };
-    assert!(save_gif(&empty, &dir.join("empty.gif"), 300, 100).is_err());
+    assert!(save_gif(&empty, &dir.join("empty.gif"), 300, 100, 1).is_err());
 }

@@ -1,0 +1,377 @@
+//! `fsrl compare RUN...`: one table across runs, methods × settings, mean ± std over the runs
+//! (seeds) of each method, the paper's numbers beside ours where it has them.
+//!
+//! A source is a run directory (its `eval/eval.json` from `fsrl eval` when present, else the
+//! `report.json` of `fsrl train`, which covers the trained setting only) or an `eval.json` file
+//! (every policy in it, e.g. the ORCA baseline).
+
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+use anyhow::{bail, Context};
+use serde::Serialize;
+use sim::Setting;
+
+use crate::config::FileConfig;
+use crate::report::{
+    csv_field, paper_layout_row, paper_row, EvalReport, Metric, Report, SettingReport,
+    SubjectReport, PAPER_COLUMNS,
+};
+
+#[derive(Debug, clap::Args)]
+pub struct CompareArgs {
+    /// Run directories of `fsrl train` (evaluated with `fsrl eval RUN` for all six settings) or
+    /// eval.json files.
+    #[arg(required = true)]
+    pub runs: Vec<PathBuf>,
+    /// Also write compare.md, compare.csv and compare.json into this directory.
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+}
+
+/// One policy's results, read from a source.
+pub struct Sourced {
+    pub subject: SubjectReport,
+}
+
+fn read_json<T: serde::de::DeserializeOwned>(path: &Path) -> anyhow::Result<T> {
+    let text =
+        std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
+    serde_json::from_str(&text)
+        .with_context(|| format!("{}: not a report this build reads", path.display()))
+}
+
+fn read_eval(path: &Path) -> anyhow::Result<EvalReport> {
+    let r: EvalReport = read_json(path)?;
+    if r.kind != crate::report::EVAL_KIND {
+        bail!(
+            "{}: not an `fsrl eval` report (kind {:?})",
+            path.display(),
+            r.kind
+        );
+    }
+    Ok(r)
+}
+
+/// Reads every source; see the module documentation.
+pub fn load_sources(paths: &[PathBuf]) -> anyhow::Result<Vec<Sourced>> {
+    let mut out = Vec::new();
+    for path in paths {
+        if path.is_dir() {
+            let eval = path.join("eval").join("eval.json");
+            let train = path.join("report.json");
+            if eval.exists() {
+                for subject in read_eval(&eval)?.subjects {
+                    out.push(Sourced { subject });
+                }
+            } else if train.exists() {
+                let r: Report = read_json(&train)?;
+                let cfg = FileConfig::load(Some(&path.join("config.toml"))).ok();
+                let label = path
+                    .canonicalize()
+                    .ok()
+                    .and_then(|p| p.file_name().map(|n| n.to_string_lossy().into_owned()))
+                    .unwrap_or_else(|| path.display().to_string());
+                eprintln!(
+                    "note: {} has no eval/eval.json; using report.json (its trained setting only). `fsrl eval {}` scores all six settings.",
+                    path.display(),
+                    path.display()
+                );
+                out.push(Sourced {
+                    subject: SubjectReport {
+                        label,
+                        method: r.method,
+                        checkpoint: Some(path.join("checkpoints").join("latest.ckpt"))
+                            .filter(|c| c.exists())
+                            .map(|c| c.display().to_string()),
+                        policy_version: r.policy_version,
+                        run_seed: cfg.as_ref().map(|c| c.run.seed),
+                        trained_setting: cfg.map(|c| c.run.setting),
+                        settings: r.settings,
+                    },
+                });
+            } else {
+                bail!(
+                    "{}: neither eval/eval.json nor report.json (run `fsrl eval {}` first)",
+                    path.display(),
+                    path.display()
+                );
+            }
+        } else if path.exists() {
+            for subject in read_eval(path)?.subjects {
+                out.push(Sourced { subject });
+            }
+        } else {
+            bail!("{}: no such run directory or eval.json", path.display());
+        }
+    }
+    Ok(out)
+}
+
+/// The runs of one method.
+pub struct Group {
+    pub method: String,
+    pub members: Vec<SubjectReport>,
+}
+
+const ORDER: [&str; 6] = [
+    "orca",
+    "lstm-rl",
+    "sarl",
+    "sarl+foresight",
+    "sarl+efficiency",
+    "fsrl",
+];
+
+/// Groups policies by method, in the paper's order (unknown methods last).
+pub fn group(sources: Vec<Sourced>) -> Vec<Group> {
+    // The same checkpoint met twice (a run directory and an eval.json holding it) counts once,
+    // with the record covering more settings.
+    let key = |s: &SubjectReport| {
+        s.checkpoint.as_ref().map(|c| {
+            (
+                std::fs::canonicalize(c).map_or_else(|_| c.clone(), |p| p.display().to_string()),
+                s.policy_version,
+            )
+        })
+    };
+    let mut unique: Vec<Sourced> = Vec::new();
+    for s in sources {
+        let k = key(&s.subject);
+        match unique
+            .iter_mut()
+            .find(|u| k.is_some() && key(&u.subject) == k)
+        {
+            Some(u) => {
+                eprintln!("note: {} is listed twice; counted once", s.subject.label);
+                if s.subject.settings.len() > u.subject.settings.len() {
+                    *u = s;
+                }
+            }
+            None => unique.push(s),
+        }
+    }
+    let mut groups: Vec<Group> = Vec::new();
+    for s in unique {
+        match groups.iter_mut().find(|g| g.method == s.subject.method) {
+            Some(g) => g.members.push(s.subject),
+            None => groups.push(Group {
+                method: s.subject.method.clone(),
+                members: vec![s.subject],
+            }),
+        }
+    }
+    let rank = |m: &str| ORDER.iter().position(|o| *o == m).unwrap_or(ORDER.len());
+    groups.sort_by_key(|g| rank(&g.method));
+    groups
+}
+
+/// Mean and standard deviation over runs.
+#[derive(Debug, Clone, Copy, Serialize)]
+pub struct Stat {
+    pub mean: f64,
+    /// Sample standard deviation over runs; null for a single run.
+    pub std: Option<f64>,
+    pub n: usize,
+}
+
+impl Stat {
+    pub fn of(xs: &[f64]) -> Option<Stat> {
+        let (mean, std) = crate::report::mean_std(xs)?;
+        Some(Stat {
+            mean,
+            std,
+            n: xs.len(),
+        })
+    }
+
+    fn text(&self, digits: usize) -> String {
+        match self.std {
+            Some(s) => format!("{:.digits$} ± {s:.digits$}", self.mean),
+            None => format!("{:.digits$}", self.mean),
+        }
+    }
+}
+
+impl Group {
+    pub fn values(&self, metric: Metric, setting: Setting) -> Vec<f64> {
+        self.members
+            .iter()
+            .filter_map(|m| m.setting(setting))
+            .filter_map(|r| metric.of(r).map(|v| v.0))
+            .collect()
+    }
+
+    pub fn stat(&self, metric: Metric, setting: Setting) -> Option<Stat> {
+        Stat::of(&self.values(metric, setting))
+    }
+
+    /// The member's own record when the group has exactly one run with this setting.
+    pub fn single(&self, setting: Setting) -> Option<&SettingReport> {
+        let mut it = self.members.iter().filter_map(|m| m.setting(setting));
+        let first = it.next()?;
+        it.next().is_none().then_some(first)
+    }
+}
+
+#[derive(Serialize)]
+struct CellJson {
+    setting: String,
+    runs: usize,
+    success: Option<Stat>,
+    collision: Option<Stat>,
+    timeout: Option<Stat>,
+    nav_time_s: Option<Stat>,
+    disc: Option<Stat>,
+    path_length_m: Option<Stat>,
+    mean_abs_rotation_rad: Option<Stat>,
+    mean_return: Option<Stat>,
+    paper_nav_time_s: Option<f64>,
+    paper_disc: Option<f64>,
+}
+
+#[derive(Serialize)]
+struct GroupJson {
+    method: String,
+    runs: Vec<String>,
+    settings: Vec<CellJson>,
+}
+
+#[derive(Serialize)]
+struct CompareJson {
+    kind: &'static str,
+    groups: Vec<GroupJson>,
+}
+
+fn to_json(groups: &[Group]) -> CompareJson {
+    CompareJson {
+        kind: "fsrl compare",
+        groups: groups
+            .iter()
+            .map(|g| GroupJson {
+                method: g.method.clone(),
+                runs: g.members.iter().map(|m| m.label.clone()).collect(),
+                settings: Setting::ALL
+                    .iter()
+                    .map(|&s| CellJson {
+                        setting: s.name().into(),
+                        runs: g.values(Metric::Success, s).len(),
+                        success: g.stat(Metric::Success, s),
+                        collision: g.stat(Metric::Collision, s),
+                        timeout: g.stat(Metric::Timeout, s),
+                        nav_time_s: g.stat(Metric::NavTime, s),
+                        disc: g.stat(Metric::Disc, s),
+                        path_length_m: g.stat(Metric::PathLength, s),
+                        mean_abs_rotation_rad: g.stat(Metric::Smoothness, s),
+                        mean_return: g.stat(Metric::Return, s),
+                        paper_nav_time_s: Metric::NavTime.paper(&g.method, s),
+                        paper_disc: Metric::Disc.paper(&g.method, s),
+                    })
+                    .collect(),
+            })
+            .collect(),
+    }
+}
+
+/// The comparison in the paper's layout.
+pub fn markdown(groups: &[Group]) -> String {
+    let mut s = String::from(
+        "# Comparison\n\nMean ± standard deviation over the runs (seeds) of each method; a single run shows its value alone. AVG is the mean over Env 1–3. Rows marked (paper) are the paper's Tables I–II (SPEC §8).\n\n",
+    );
+    s += "| method | runs |\n|---|---|\n";
+    for g in groups {
+        let runs: Vec<&str> = g.members.iter().map(|m| m.label.as_str()).collect();
+        let _ = writeln!(s, "| {} | {} |", g.method, runs.join(", "));
+    }
+    s.push('\n');
+    for metric in Metric::ALL {
+        let d = metric.digits();
+        let _ = writeln!(s, "## {}\n", metric.title());
+        let _ = writeln!(s, "| method {PAPER_COLUMNS}");
+        let _ = writeln!(s, "|---|---|---|---|---|---|---|---|---|");
+        for g in groups {
+            let row = paper_layout_row(
+                |setting| match g.stat(metric, setting) {
+                    Some(st) => (st.text(d), Some(st.mean)),
+                    None => ("–".into(), None),
+                },
+                d,
+            );
+            let _ = writeln!(s, "| {} (n={}) |{row}", g.method, g.members.len());
+            if let Some(p) = paper_row(metric, &g.method) {
+                let _ = writeln!(s, "{p}");
+            }
+        }
+        s.push('\n');
+    }
+    s
+}
+
+fn csv(groups: &[Group]) -> String {
+    let mut s = String::from("method,setting,runs");
+    for m in [
+        "success",
+        "collision",
+        "timeout",
+        "nav_time_s",
+        "disc",
+        "path_length_m",
+        "mean_abs_rotation_rad",
+        "mean_return",
+    ] {
+        let _ = write!(s, ",{m}_mean,{m}_std");
+    }
+    s += ",paper_nav_time_s,paper_disc\n";
+    let f = |v: Option<f64>| v.map_or(String::new(), |x| format!("{x}"));
+    for g in groups {
+        for &setting in &Setting::ALL {
+            let n = g.values(Metric::Success, setting).len();
+            if n == 0 {
+                continue;
+            }
+            let _ = write!(s, "{},{},{n}", csv_field(&g.method), setting.name());
+            for metric in Metric::ALL {
+                let st = g.stat(metric, setting);
+                let _ = write!(
+                    s,
+                    ",{},{}",
+                    f(st.map(|x| x.mean)),
+                    f(st.and_then(|x| x.std))
+                );
+            }
+            let _ = writeln!(
+                s,
+                ",{},{}",
+                f(Metric::NavTime.paper(&g.method, setting)),
+                f(Metric::Disc.paper(&g.method, setting))
+            );
+        }
+    }
+    s
+}
+
+pub fn run(args: CompareArgs) -> anyhow::Result<()> {
+    let groups = group(load_sources(&args.runs)?);
+    let md = markdown(&groups);
+    println!("{md}");
+    if let Some(dir) = &args.out {
+        std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+        for (name, text) in [
+            ("compare.md", md.clone()),
+            ("compare.csv", csv(&groups)),
+            (
+                "compare.json",
+                serde_json::to_string_pretty(&to_json(&groups))?,
+            ),
+        ] {
+            let path = dir.join(name);
+            std::fs::write(&path, text)
+                .with_context(|| format!("cannot write {}", path.display()))?;
+        }
+        println!(
+            "written: {}/compare.md, compare.csv, compare.json",
+            dir.display()
+        );
+    }
+    Ok(())
+}

@@ -1,0 +1,441 @@
+//! `fsrl plot ...`: the pictures, each as SVG and PNG (and a GIF of an episode):
+//! `bars` (outcome rates per setting and method, paper Fig. 5), `curves` (learning curves from
+//! metrics.jsonl), `ablation` (paper Fig. 8–9) and `episode` (a trajectory with attention
+//! weights at chosen times, paper Fig. 7, plus an animated GIF).
+
+use std::path::PathBuf;
+
+use anyhow::{bail, Context};
+use policy::lookahead::{HumanModel, Lookahead};
+use policy::method::Method;
+use sim::{run_episode, Env, Outcome, Setting};
+use viz::{Interval, OutcomeCell};
+
+use crate::cmd_compare::{group, load_sources, Group};
+use crate::cmd_eval::{label_of, load_checkpoint, resolve_input};
+use crate::config::FileConfig;
+use crate::report::Metric;
+
+#[derive(Debug, clap::Args)]
+pub struct PlotArgs {
+    #[command(subcommand)]
+    pub what: PlotCommand,
+}
+
+#[derive(Debug, clap::Subcommand)]
+pub enum PlotCommand {
+    /// Success / collision / timeout rates per setting and method (paper Fig. 5).
+    Bars(BarsArgs),
+    /// Success rate, return and loss against RL episodes, from runs' metrics.jsonl.
+    Curves(CurvesArgs),
+    /// The reward ablation: sarl (R_c), sarl+foresight (+R_f), sarl+efficiency (+R_t), fsrl (all).
+    Ablation(AblationArgs),
+    /// One episode: trajectory with every human's attention weight at chosen times, and a GIF.
+    Episode(EpisodeArgs),
+}
+
+#[derive(Debug, clap::Args)]
+pub struct BarsArgs {
+    /// Run directories or eval.json files (as for `fsrl compare`).
+    #[arg(required = true)]
+    pub sources: Vec<PathBuf>,
+    /// Output path without extension: writes OUT.svg and OUT.png.
+    #[arg(long, default_value = "outcomes")]
+    pub out: PathBuf,
+    #[arg(long)]
+    pub title: Option<String>,
+}
+
+#[derive(Debug, clap::Args)]
+pub struct CurvesArgs {
+    /// Run directories (their metrics.jsonl) or metrics.jsonl files.
+    #[arg(required = true)]
+    pub runs: Vec<PathBuf>,
+    /// Output path without extension: writes OUT.svg and OUT.png.
+    #[arg(long, default_value = "curves")]
+    pub out: PathBuf,
+    /// Moving-average window (episodes) for return and loss.
+    #[arg(long, default_value_t = 100)]
+    pub window: usize,
+    #[arg(long)]
+    pub title: Option<String>,
+}
+
+#[derive(Debug, clap::Args)]
+pub struct AblationArgs {
+    /// Run directories or eval.json files of sarl, sarl+foresight, sarl+efficiency and fsrl.
+    #[arg(required = true)]
+    pub sources: Vec<PathBuf>,
+    /// Average over Env 1–3 of this visibility: invisible (as the paper) or visible.
+    #[arg(long, default_value = "invisible")]
+    pub visibility: String,
+    /// Output path without extension: writes OUT.svg and OUT.png.
+    #[arg(long, default_value = "ablation")]
+    pub out: PathBuf,
+    #[arg(long)]
+    pub title: Option<String>,
+}
+
+#[derive(Debug, clap::Args)]
+pub struct EpisodeArgs {
+    /// A checkpoint or run directory (omit with --orca).
+    pub input: Option<PathBuf>,
+    /// Picture the ORCA baseline instead.
+    #[arg(long)]
+    pub orca: bool,
+    /// Setting [default: the run's trained setting, env2-invisible for ORCA].
+    #[arg(long)]
+    pub setting: Option<String>,
+    /// Episode seed (test seeds start at 1000).
+    #[arg(long, default_value_t = 1000)]
+    pub seed: u64,
+    /// Times (s) of the panels, comma-separated [default: a third, two thirds and the end].
+    #[arg(long, value_delimiter = ',')]
+    pub times: Vec<f64>,
+    /// Output path without extension: writes OUT.svg, OUT.png and OUT.gif.
+    #[arg(long, default_value = "episode")]
+    pub out: PathBuf,
+    /// Do not write the GIF.
+    #[arg(long)]
+    pub no_gif: bool,
+    /// Side of the GIF's scene in pixels.
+    #[arg(long, default_value_t = 360)]
+    pub gif_size: u32,
+    /// Milliseconds per GIF frame.
+    #[arg(long, default_value_t = 150)]
+    pub frame_ms: u32,
+    /// One GIF frame every this many steps (smaller files).
+    #[arg(long, default_value_t = 1)]
+    pub stride: usize,
+}
+
+pub fn run(args: PlotArgs) -> anyhow::Result<()> {
+    let written = match args.what {
+        PlotCommand::Bars(a) => bars(a)?,
+        PlotCommand::Curves(a) => curves(a)?,
+        PlotCommand::Ablation(a) => ablation(a)?,
+        PlotCommand::Episode(a) => episode(a)?,
+    };
+    for p in written {
+        println!("written: {}", p.display());
+    }
+    Ok(())
+}
+
+fn clip(x: f64) -> f64 {
+    x.clamp(0.0, 1.0)
+}
+
+/// A rate's bar: a single run's Wilson interval, or mean ± std over runs.
+fn rate_interval(g: &Group, metric: Metric, setting: Setting) -> Option<Interval> {
+    if let Some(r) = g.single(setting) {
+        let (v, ci) = metric.of(r)?;
+        let [lo, hi] = ci.unwrap_or([v, v]);
+        return Some(Interval { mean: v, lo, hi });
+    }
+    let st = g.stat(metric, setting)?;
+    let sd = st.std.unwrap_or(0.0);
+    Some(Interval {
+        mean: st.mean,
+        lo: clip(st.mean - sd),
+        hi: clip(st.mean + sd),
+    })
+}
+
+fn outcome_cell(g: &Group, setting: Setting) -> Option<OutcomeCell> {
+    Some(OutcomeCell {
+        success: rate_interval(g, Metric::Success, setting)?,
+        collision: rate_interval(g, Metric::Collision, setting)?,
+        timeout: rate_interval(g, Metric::Timeout, setting)?,
+    })
+}
+
+const INTERVAL_NOTE: &str =
+    "error bars: 95% Wilson interval for a single run, ± standard deviation over runs otherwise";
+
+fn pretty_setting(s: Setting) -> String {
+    let name = s.name();
+    let (env, vis) = name.split_once('-').unwrap_or((name, ""));
+    format!("Env {} ({vis})", env.trim_start_matches("env"))
+}
+
+fn bars(a: BarsArgs) -> anyhow::Result<Vec<PathBuf>> {
+    let groups = group(load_sources(&a.sources)?);
+    let settings: Vec<Setting> = Setting::ALL
+        .iter()
+        .copied()
+        .filter(|&s| {
+            groups
+                .iter()
+                .any(|g| g.single(s).is_some() || g.stat(Metric::Success, s).is_some())
+        })
+        .collect();
+    if settings.is_empty() {
+        bail!("no results in {:?}", a.sources);
+    }
+    let fig = viz::OutcomeBars {
+        title: a
+            .title
+            .unwrap_or_else(|| "Outcome rates per setting and method".into()),
+        settings: settings.iter().map(|&s| pretty_setting(s)).collect(),
+        methods: groups
+            .iter()
+            .map(|g| format!("{} ({})", g.method, g.members.len()))
+            .collect(),
+        cells: settings
+            .iter()
+            .map(|&s| groups.iter().map(|g| outcome_cell(g, s)).collect())
+            .collect(),
+        interval_note: format!("{INTERVAL_NOTE}; (n) = runs"),
+    };
+    Ok(viz::save(&fig, &a.out)?)
+}
+
+fn curves(a: CurvesArgs) -> anyhow::Result<Vec<PathBuf>> {
+    let mut runs = Vec::new();
+    for path in &a.runs {
+        let file = if path.is_dir() {
+            path.join("metrics.jsonl")
+        } else {
+            path.clone()
+        };
+        let metrics = viz::metrics::read_metrics(&file)?;
+        let dir = if path.is_dir() {
+            path.clone()
+        } else {
+            path.parent().map(PathBuf::from).unwrap_or_default()
+        };
+        let label = dir
+            .canonicalize()
+            .ok()
+            .and_then(|p| p.file_name().map(|n| n.to_string_lossy().into_owned()))
+            .unwrap_or_else(|| path.display().to_string());
+        runs.push(viz::CurveRun { label, metrics });
+    }
+    if runs
+        .iter()
+        .all(|r| r.metrics.rl.is_empty() && r.metrics.imitation.is_empty())
+    {
+        bail!("no imitation or RL lines in {:?}", a.runs);
+    }
+    let fig = viz::LearningCurves {
+        title: a.title.unwrap_or_else(|| "Learning curves".into()),
+        runs,
+        window: a.window.max(1),
+    };
+    Ok(viz::save(&fig, &a.out)?)
+}
+
+fn ablation(a: AblationArgs) -> anyhow::Result<Vec<PathBuf>> {
+    let visible = match a.visibility.as_str() {
+        "invisible" => false,
+        "visible" => true,
+        v => bail!("--visibility must be invisible or visible, got {v:?}"),
+    };
+    let groups = group(load_sources(&a.sources)?);
+    let envs: Vec<Setting> = Setting::ALL
+        .iter()
+        .copied()
+        .filter(|s| s.robot_visible == visible)
+        .collect();
+    let variants = [
+        ("sarl", "R_c (sarl)"),
+        ("sarl+foresight", "+R_f"),
+        ("sarl+efficiency", "+R_t"),
+        ("fsrl", "all (fsrl)"),
+    ];
+    // Per run: the mean over the environments it has; then mean ± std over runs.
+    let per_run = |g: &Group, metric: Metric| -> Vec<f64> {
+        g.members
+            .iter()
+            .filter_map(|m| {
+                let vals: Vec<f64> = envs
+                    .iter()
+                    .filter_map(|&s| m.setting(s).and_then(|r| metric.of(r)).map(|v| v.0))
+                    .collect();
+                crate::report::mean_std(&vals).map(|v| v.0)
+            })
+            .collect()
+    };
+    let interval = |g: Option<&Group>, metric: Metric, rate: bool| -> Option<Interval> {
+        let (mean, std) = crate::report::mean_std(&per_run(g?, metric))?;
+        let sd = std.unwrap_or(0.0);
+        let (lo, hi) = (mean - sd, mean + sd);
+        Some(if rate {
+            Interval {
+                mean,
+                lo: clip(lo),
+                hi: clip(hi),
+            }
+        } else {
+            Interval {
+                mean,
+                lo: lo.max(0.0),
+                hi,
+            }
+        })
+    };
+    let find = |m: &str| groups.iter().find(|g| g.method == m);
+    if variants.iter().all(|(m, _)| find(m).is_none()) {
+        bail!(
+            "none of sarl, sarl+foresight, sarl+efficiency, fsrl in {:?}",
+            a.sources
+        );
+    }
+    let fig = viz::Ablation {
+        title: a.title.unwrap_or_else(|| {
+            format!("Reward ablation: averages over Env 1–3 ({})", a.visibility)
+        }),
+        variants: variants
+            .iter()
+            .map(|(m, label)| format!("{label} ({})", find(m).map_or(0, |g| g.members.len())))
+            .collect(),
+        outcomes: variants
+            .iter()
+            .map(|(m, _)| {
+                let g = find(m);
+                Some(OutcomeCell {
+                    success: interval(g, Metric::Success, true)?,
+                    collision: interval(g, Metric::Collision, true)?,
+                    timeout: interval(g, Metric::Timeout, true)?,
+                })
+            })
+            .collect(),
+        nav_time_s: variants
+            .iter()
+            .map(|(m, _)| interval(find(m), Metric::NavTime, false))
+            .collect(),
+        disc: variants
+            .iter()
+            .map(|(m, _)| interval(find(m), Metric::Disc, false))
+            .collect(),
+        interval_note:
+            "error bars: ± standard deviation over runs (none for a single run); (n) = runs".into(),
+    };
+    Ok(viz::save(&fig, &a.out)?)
+}
+
+fn episode(a: EpisodeArgs) -> anyhow::Result<Vec<PathBuf>> {
+    if a.orca == a.input.is_some() {
+        bail!("name one checkpoint or run directory, or pass --orca");
+    }
+    let loaded = match &a.input {
+        Some(p) => {
+            let input = resolve_input(p)?;
+            let label = label_of(&input);
+            Some((load_checkpoint(&input.checkpoint)?, label))
+        }
+        None => None,
+    };
+    let (method, sim_cfg, trained) = match &loaded {
+        Some((l, _)) => (l.core.method(), l.sim.clone(), Some(l.run.setting.clone())),
+        None => (Method::Orca, FileConfig::default().sim, None),
+    };
+    let setting_name = a
+        .setting
+        .clone()
+        .or(trained)
+        .unwrap_or_else(|| "env2-invisible".into());
+    let setting = sim_cfg.resolve_settings(&[setting_name.as_str()])?[0];
+    let mut env = Env::new(method.sim_config(&sim_cfg), setting, a.seed)
+        .with_context(|| format!("cannot build {setting} seed {}", a.seed))?;
+    let humans0 = env.humans().to_vec();
+    let n = humans0.len();
+    let mut attention: Vec<Option<Vec<f64>>> = Vec::new();
+    let mut failure = None;
+    let episode = match &loaded {
+        None => run_episode(&mut env, |env| env.orca_robot_action(0.0), true)?,
+        Some((l, _)) => {
+            let train = l.core.config();
+            let human_model: HumanModel = train.human_model.into();
+            let mut la = Lookahead::new(train.gamma, human_model, method.human_order());
+            let net = l.core.online();
+            run_episode(
+                &mut env,
+                |env| match la.decide(env, net) {
+                    Ok(d) => {
+                        let row = la.attention(net).and_then(|att| {
+                            att.get(d.action * n..(d.action + 1) * n)
+                                .map(|r| r.iter().map(|&w| w as f64).collect())
+                        });
+                        attention.push(row);
+                        d.action
+                    }
+                    Err(e) => {
+                        failure.get_or_insert(e);
+                        attention.push(None);
+                        0
+                    }
+                },
+                true,
+            )?
+        }
+    };
+    if let Some(e) = failure {
+        return Err(anyhow::Error::new(e).context("the policy failed during the episode"));
+    }
+    let outcome = match episode.summary.outcome {
+        Outcome::ReachGoal => format!("success after {:.2} s", episode.summary.time_s),
+        Outcome::Collision => format!("collision at {:.2} s", episode.summary.time_s),
+        Outcome::Timeout => format!("timeout at {:.2} s", episode.summary.time_s),
+        Outcome::Running => "unfinished".into(),
+    };
+    let who = loaded.as_ref().map_or_else(
+        || "orca".to_string(),
+        |(_, label)| format!("{method} ({label})"),
+    );
+    let frames: Vec<viz::TraceFrame> = episode
+        .frames
+        .iter()
+        .enumerate()
+        .map(|(k, f)| viz::TraceFrame {
+            time_s: f.time_s,
+            robot: (f.robot.position.x, f.robot.position.y),
+            heading_rad: f.robot.heading_rad,
+            humans: f.humans.iter().map(|p| (p.x, p.y)).collect(),
+            attention: attention.get(k).cloned().flatten(),
+        })
+        .collect();
+    let end = frames.last().map_or(0.0, |f| f.time_s);
+    let times = if a.times.is_empty() {
+        vec![end / 3.0, 2.0 * end / 3.0, end]
+    } else {
+        a.times.clone()
+    };
+    if let Some(t) = times.iter().find(|t| !t.is_finite() || **t < 0.0) {
+        bail!("--times: {t} is not a time within the episode");
+    }
+    let robot = frames.first().map(|_| env.robot());
+    let trace = viz::EpisodeTrace {
+        title: format!("{who} on {setting}, seed {}", a.seed),
+        robot_radius_m: robot.map_or(0.3, |r| r.radius_m),
+        robot_goal: robot.map_or((0.0, 4.0), |r| (r.goal.x, r.goal.y)),
+        humans: humans0
+            .iter()
+            .map(|h| viz::HumanInfo {
+                radius_m: h.radius_m,
+                standing: h.standing,
+                goal: (h.goal.x, h.goal.y),
+            })
+            .collect(),
+        frames,
+        outcome,
+    };
+    let mut written = viz::save(
+        &viz::Trajectory {
+            trace: trace.clone(),
+            times_s: times,
+        },
+        &a.out,
+    )?;
+    if !a.no_gif {
+        written.push(viz::save_gif(
+            &trace,
+            &viz::with_ext(&a.out, "gif"),
+            a.gif_size.clamp(120, 2000),
+            a.frame_ms.max(10),
+            a.stride,
+        )?);
+    }
+    Ok(written)
+}

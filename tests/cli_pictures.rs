@@ -1,0 +1,370 @@
+//! `fsrl eval`, `fsrl compare` and `fsrl plot` end to end on tiny runs: the reports carry every
+//! metric with its intervals and the paper's numbers, and every kind of picture is a valid,
+//! non-trivial SVG, PNG or GIF with the expected bars, series and frames. Bad inputs give clear
+//! errors. Set `FSRL_PICTURES_KEEP=dir` to keep the pictures for a look.
+
+use std::collections::HashSet;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+fn fsrl(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_fsrl"))
+        .args(args)
+        .output()
+        .unwrap()
+}
+
+fn ok(args: &[&str]) -> String {
+    let o = fsrl(args);
+    let stdout = String::from_utf8_lossy(&o.stdout).into_owned();
+    assert!(
+        o.status.success(),
+        "fsrl {args:?} failed:\n{stdout}\n{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    stdout
+}
+
+fn fails(args: &[&str]) -> String {
+    let o = fsrl(args);
+    assert!(!o.status.success(), "fsrl {args:?} should fail");
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+fn train(dir: &Path, method: &str, name: &str) -> PathBuf {
+    let out = dir.join(name);
+    ok(&[
+        "train",
+        "--single-process",
+        "--method",
+        method,
+        "--setting",
+        "env2-invisible",
+        "--il-episodes",
+        "6",
+        "--il-epochs",
+        "2",
+        "--rl-episodes",
+        "3",
+        "--eval-episodes",
+        "3",
+        "--out",
+        s(&out),
+    ]);
+    out
+}
+
+struct Svg {
+    width: f64,
+    height: f64,
+    fills: Vec<String>,
+    wide_polylines: usize,
+    text: String,
+}
+
+fn svg(path: &Path) -> Svg {
+    let src = std::fs::read_to_string(path).unwrap();
+    let doc = roxmltree::Document::parse(&src)
+        .unwrap_or_else(|e| panic!("{}: invalid SVG: {e}", path.display()));
+    let root = doc.root_element();
+    assert_eq!(root.tag_name().name(), "svg");
+    let mut out = Svg {
+        width: root.attribute("width").unwrap().parse().unwrap(),
+        height: root.attribute("height").unwrap().parse().unwrap(),
+        fills: Vec::new(),
+        wide_polylines: 0,
+        text: String::new(),
+    };
+    for n in doc.descendants() {
+        match n.tag_name().name() {
+            "rect" | "polygon" => out
+                .fills
+                .push(n.attribute("fill").unwrap_or("").to_uppercase()),
+            "polyline" if n.attribute("stroke-width") == Some("2") => out.wide_polylines += 1,
+            "text" => {
+                out.text.push_str(n.text().unwrap_or(""));
+                out.text.push('\n');
+            }
+            _ => {}
+        }
+    }
+    assert!(out.width > 300.0 && out.height > 200.0);
+    out
+}
+
+/// Decodes a PNG: its size equals the SVG's, and it is not blank.
+fn png(path: &Path, svg: &Svg) {
+    let mut reader = png::Decoder::new(std::fs::File::open(path).unwrap())
+        .read_info()
+        .unwrap();
+    let mut buf = vec![0; reader.output_buffer_size()];
+    let info = reader.next_frame(&mut buf).unwrap();
+    assert_eq!(
+        (info.width as f64, info.height as f64),
+        (svg.width, svg.height)
+    );
+    let colours: HashSet<&[u8]> = buf[..info.buffer_size()]
+        .chunks(info.color_type.samples())
+        .collect();
+    assert!(colours.len() > 20, "{}: nearly blank", path.display());
+}
+
+fn count(fills: &[String], colour: &str) -> usize {
+    fills.iter().filter(|f| *f == colour).count()
+}
+
+fn keep(dir: &Path) {
+    if let Some(k) = std::env::var_os("FSRL_PICTURES_KEEP") {
+        std::fs::create_dir_all(&k).unwrap();
+        for e in std::fs::read_dir(dir).unwrap() {
+            let p = e.unwrap().path();
+            if p.is_file() {
+                std::fs::copy(&p, Path::new(&k).join(p.file_name().unwrap())).unwrap();
+            }
+        }
+    }
+}
+
+#[test]
+fn reports_and_every_picture_from_tiny_runs() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path();
+    let sarl = train(dir, "sarl", "sarl-s0");
+    let fsrl_run = train(dir, "fsrl", "fsrl-s0");
+
+    // eval: one run directory → RUN/eval/; the numbers equal the train report's on its setting.
+    ok(&["eval", s(&sarl), "--episodes", "3", "--threads", "2"]);
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(sarl.join("eval/eval.json")).unwrap())
+            .unwrap();
+    assert_eq!(json["kind"], "fsrl eval");
+    let subject = &json["subjects"][0];
+    assert_eq!(subject["method"], "sarl");
+    let settings = subject["settings"].as_array().unwrap();
+    assert_eq!(settings.len(), 6);
+    let train_report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(sarl.join("report.json")).unwrap()).unwrap();
+    let trained = &train_report["settings"][0];
+    let same = settings
+        .iter()
+        .find(|r| r["setting"] == "env2-invisible")
+        .unwrap();
+    for key in [
+        "success",
+        "collision",
+        "timeout",
+        "disc",
+        "mean_return",
+        "nav_time_s",
+    ] {
+        assert_eq!(same[key], trained[key], "{key}");
+    }
+    for r in settings {
+        let [lo, hi] = [
+            r["success_ci95"][0].as_f64().unwrap(),
+            r["success_ci95"][1].as_f64().unwrap(),
+        ];
+        let p = r["success"].as_f64().unwrap();
+        assert!(lo <= p && p <= hi, "{r}");
+    }
+    let md = std::fs::read_to_string(sarl.join("eval/eval.md")).unwrap();
+    assert!(md.contains(
+        "| SARL (paper) | 12.25 | 11.39 | 11.15 | 11.60 | 9.85 | 10.33 | 10.01 | 10.06 |"
+    ));
+    let csv = std::fs::read_to_string(sarl.join("eval/eval.csv")).unwrap();
+    assert_eq!(csv.lines().count(), 1 + 6);
+    assert!(csv.starts_with("label,method,checkpoint,"));
+
+    // eval of ORCA and a checkpoint file together, into --out.
+    let both = dir.join("both");
+    ok(&[
+        "eval",
+        "--orca",
+        s(&fsrl_run.join("checkpoints/latest.ckpt")),
+        "--episodes",
+        "3",
+        "--out",
+        s(&both),
+    ]);
+    let csv = std::fs::read_to_string(both.join("eval.csv")).unwrap();
+    assert_eq!(csv.lines().count(), 1 + 2 * 6);
+    assert!(csv.contains("\norca,orca,,0,"));
+
+    // compare: a run directory with eval/, one with only report.json, and an eval.json.
+    let cmp = dir.join("cmp");
+    let table = ok(&[
+        "compare",
+        s(&sarl),
+        s(&fsrl_run),
+        s(&both.join("eval.json")),
+        "--out",
+        s(&cmp),
+    ]);
+    assert!(table.contains("| orca (n=1) |"));
+    assert!(table.contains("| sarl (n=1) |"));
+    // fsrl's run is met twice (its report.json and both/eval.json): counted once, with the
+    // record that covers all six settings.
+    assert!(table.contains("| fsrl (n=1) |"), "{table}");
+    let succ_row = table
+        .lines()
+        .find(|l| l.starts_with("| fsrl (n=1) |"))
+        .unwrap();
+    assert!(!succ_row.contains('–'), "{succ_row}");
+    assert!(table.contains("| ORCA (paper) | 12.49 |"));
+    for f in ["compare.md", "compare.csv", "compare.json"] {
+        assert!(cmp.join(f).is_file());
+    }
+
+    // Pictures.
+    let pics = dir.join("pics");
+    ok(&[
+        "plot",
+        "bars",
+        s(&sarl),
+        s(&both.join("eval.json")),
+        "--out",
+        s(&pics.join("bars")),
+    ]);
+    let bars = svg(&pics.join("bars.svg"));
+    // 6 settings × 3 methods, one bar per outcome, plus the legend's square.
+    assert_eq!(count(&bars.fills, "#2CA02C"), 18 + 1);
+    assert_eq!(count(&bars.fills, "#D62728"), 18 + 1);
+    assert_eq!(count(&bars.fills, "#FF9F1C"), 18 + 1);
+    assert!(bars.text.contains("Env 3 (visible)"));
+    png(&pics.join("bars.png"), &bars);
+
+    ok(&[
+        "plot",
+        "curves",
+        s(&sarl),
+        s(&fsrl_run),
+        "--window",
+        "2",
+        "--out",
+        s(&pics.join("curves")),
+    ]);
+    let curves = svg(&pics.join("curves.svg"));
+    assert_eq!(curves.wide_polylines, 4 * 2, "4 panels × 2 runs");
+    assert!(curves.text.contains("sarl-s0") && curves.text.contains("fsrl-s0"));
+    png(&pics.join("curves.png"), &curves);
+
+    ok(&[
+        "plot",
+        "ablation",
+        s(&sarl),
+        s(&both.join("eval.json")),
+        "--out",
+        s(&pics.join("ablation")),
+    ]);
+    let abl = svg(&pics.join("ablation.svg"));
+    // sarl and fsrl have results; +R_f and +R_t have none (no bars).
+    assert_eq!(count(&abl.fills, "#2CA02C"), 2 + 1);
+    assert_eq!(count(&abl.fills, "#9467BD"), 2 + 1, "Disc. bars");
+    // Nav. Time only where a tiny run had a success.
+    assert!(count(&abl.fills, "#1F77B4") <= 2 + 1);
+    for w in [
+        "R_c (sarl) (1)",
+        "+R_f (0)",
+        "all (fsrl) (1)",
+        "Nav. Time",
+        "Disc.",
+    ] {
+        assert!(abl.text.contains(w), "missing {w}");
+    }
+    png(&pics.join("ablation.png"), &abl);
+
+    let out = ok(&[
+        "plot",
+        "episode",
+        s(&fsrl_run),
+        "--seed",
+        "1002",
+        "--times",
+        "1,3",
+        "--gif-size",
+        "200",
+        "--out",
+        s(&pics.join("episode")),
+    ]);
+    assert!(out.contains("episode.gif"));
+    let ep = svg(&pics.join("episode.svg"));
+    assert!(ep.text.contains("t = 1.00 s") && ep.text.contains("t = 3.00 s"));
+    assert!(ep.text.contains("attention"));
+    // Every one of the 10 humans has its weight printed in both panels.
+    let weights = ep
+        .text
+        .lines()
+        .filter(|l| l.len() == 4 && l.starts_with("0."))
+        .count();
+    assert!(weights >= 2 * 10, "{weights} weights");
+    png(&pics.join("episode.png"), &ep);
+    let mut gif = gif::DecodeOptions::new()
+        .read_info(std::fs::File::open(pics.join("episode.gif")).unwrap())
+        .unwrap();
+    let mut frames = 0;
+    while gif.read_next_frame().unwrap().is_some() {
+        frames += 1;
+    }
+    assert!(frames > 8 + 4, "{frames} frames");
+
+    ok(&[
+        "plot",
+        "episode",
+        "--orca",
+        "--setting",
+        "env3-visible",
+        "--no-gif",
+        "--out",
+        s(&pics.join("orca")),
+    ]);
+    let orca = svg(&pics.join("orca.svg"));
+    assert!(orca.text.contains("no attention"));
+    assert!(!pics.join("orca.gif").exists());
+    keep(&pics);
+}
+
+#[test]
+fn bad_inputs_are_clear_errors() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path();
+    let e = fails(&["eval", s(&dir.join("nope.ckpt")), "--episodes", "1"]);
+    assert!(
+        e.contains("nope.ckpt: no such checkpoint or run directory"),
+        "{e}"
+    );
+    let e = fails(&["eval", "--episodes", "1"]);
+    assert!(e.contains("nothing to evaluate"), "{e}");
+    let e = fails(&[
+        "eval",
+        "--orca",
+        "--settings",
+        "env9-visible",
+        "--episodes",
+        "1",
+    ]);
+    assert!(e.contains("env9-visible"), "{e}");
+
+    let garbage = dir.join("garbage.ckpt");
+    std::fs::write(&garbage, b"not a checkpoint").unwrap();
+    let e = fails(&["eval", s(&garbage), "--episodes", "1"]);
+    assert!(e.contains("garbage.ckpt"), "{e}");
+
+    let run = dir.join("run");
+    std::fs::create_dir_all(&run).unwrap();
+    std::fs::write(
+        run.join("metrics.jsonl"),
+        "{\"phase\":\"imitation\",\"epoch\":0,\"loss\":0.1,\"wall_s\":0.5}\n{\"phase\":\"rl\",\"episode\":\n",
+    )
+    .unwrap();
+    let e = fails(&["plot", "curves", s(&run), "--out", s(&dir.join("c"))]);
+    assert!(e.contains("metrics.jsonl:2: not JSON"), "{e}");
+
+    let e = fails(&["compare", s(&run)]);
+    assert!(e.contains("neither eval/eval.json nor report.json"), "{e}");
+    let e = fails(&["plot", "episode", "--out", s(&dir.join("e"))]);
+    assert!(e.contains("or pass --orca"), "{e}");
+}

@@ -1,0 +1,713 @@
+//! Emulated hosts for `tests/multihost.rs` and `benches/multihost.rs`: network namespaces
+//! joined by veth pairs (made here, removed on drop), a test CA from `deploy/make-test-ca.sh`,
+//! the `deploy/` configs adapted to the namespaces, processes started inside a namespace, and
+//! helper processes (observer, rogue publisher, latency probes) that re-run the calling test or
+//! bench binary inside a namespace ([`helper_main`]).
+#![allow(dead_code)]
+
+use std::collections::BTreeMap;
+use std::io::{BufRead, BufReader, Write};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::sync::{Arc, Condvar, Mutex};
+use std::time::{Duration, Instant};
+
+use proto::{keys, Metrics, Role, RunId, SenderId};
+use transport::{Transport, TransportConfig, ZenohConfig};
+
+/// Set in a helper process's environment: which helper to run.
+pub const HELPER_ENV: &str = "FSRL_MULTIHOST_HELPER";
+/// A run config (TOML) whose `[run]` and `[transport.zenoh]` the helper uses.
+pub const CONFIG_ENV: &str = "FSRL_MULTIHOST_CONFIG";
+/// Extra helper parameter (`latency-pub`: messages, period in ms as `N,MS`).
+pub const ARG_ENV: &str = "FSRL_MULTIHOST_ARG";
+
+/// The version the rogue publishers give their weights: no learner ever reaches it.
+pub const ROGUE_VERSION: u64 = 1_000_000;
+
+/// Why network namespaces cannot be made here, if they cannot.
+pub fn netns_unavailable() -> Option<String> {
+    // SAFETY: geteuid has no preconditions and cannot fail.
+    if unsafe { libc::geteuid() } != 0 {
+        return Some("not running as root (network namespaces need CAP_SYS_ADMIN)".into());
+    }
+    match Command::new("ip").args(["netns", "list"]).output() {
+        Err(e) => return Some(format!("`ip` (iproute2) cannot be run: {e}")),
+        Ok(o) if !o.status.success() => {
+            return Some(format!(
+                "`ip netns list` failed: {}",
+                String::from_utf8_lossy(&o.stderr).trim()
+            ))
+        }
+        Ok(_) => {}
+    }
+    let probe = format!("fmh{}-probe", std::process::id());
+    let made = ip(&["netns", "add", &probe]);
+    let _ = ip(&["netns", "del", &probe]);
+    made.err()
+        .map(|e| format!("cannot create a network namespace: {e}"))
+}
+
+/// Runs `ip ARGS`, returning its error output on failure.
+pub fn ip(args: &[&str]) -> Result<(), String> {
+    let o = Command::new("ip")
+        .args(args)
+        .output()
+        .map_err(|e| format!("ip {}: {e}", args.join(" ")))?;
+    if o.status.success() {
+        Ok(())
+    } else {
+        Err(format!(
+            "ip {}: {}",
+            args.join(" "),
+            String::from_utf8_lossy(&o.stderr).trim()
+        ))
+    }
+}
+
+/// Removes namespaces left behind by runs that were killed before they could clean up
+/// (`fmh<pid>-...` whose process is gone).
+fn sweep_stale() {
+    let Ok(o) = Command::new("ip").args(["netns", "list"]).output() else {
+        return;
+    };
+    for line in String::from_utf8_lossy(&o.stdout).lines() {
+        let Some(name) = line.split_whitespace().next() else {
+            continue;
+        };
+        let Some(rest) = name.strip_prefix("fmh") else {
+            continue;
+        };
+        let Some(pid) = rest.split('-').next().and_then(|p| p.parse::<u32>().ok()) else {
+            continue;
+        };
+        if !Path::new(&format!("/proc/{pid}")).exists() {
+            let _ = ip(&["netns", "del", name]);
+        }
+    }
+}
+
+/// Three emulated hosts: `hub` (router, learner, evaluator) and two actor hosts, each joined to
+/// the hub by its own veth pair: actor host k (0, 1) is `10.201.<k+1>.2/24` on its `eth0`, the
+/// hub `10.201.<k+1>.1/24` on `to-a<k+1>`. The namespaces (and with them the veths) are removed
+/// on drop. Names are unique per process and tag.
+pub struct Hosts {
+    pub hub: String,
+    pub actors: [String; 2],
+    created: Vec<String>,
+}
+
+impl Hosts {
+    pub fn create(tag: &str) -> Result<Self, String> {
+        sweep_stale();
+        let pid = std::process::id();
+        let name = |role: &str| format!("fmh{pid}-{tag}-{role}");
+        let mut h = Hosts {
+            hub: name("hub"),
+            actors: [name("a1"), name("a2")],
+            created: Vec::new(),
+        };
+        for ns in [h.hub.clone(), h.actors[0].clone(), h.actors[1].clone()] {
+            ip(&["netns", "add", &ns])?;
+            h.created.push(ns.clone());
+            ip(&["-n", &ns, "link", "set", "lo", "up"])?;
+        }
+        for k in 0..2 {
+            let a = h.actors[k].clone();
+            let hub_if = format!("to-a{}", k + 1);
+            ip(&[
+                "link", "add", "eth0", "netns", &a, "type", "veth", "peer", "name", &hub_if,
+                "netns", &h.hub,
+            ])?;
+            ip(&[
+                "-n",
+                &h.hub,
+                "addr",
+                "add",
+                &format!("{}/24", Self::hub_addr(k)),
+                "dev",
+                &hub_if,
+            ])?;
+            ip(&[
+                "-n",
+                &a,
+                "addr",
+                "add",
+                &format!("10.201.{}.2/24", k + 1),
+                "dev",
+                "eth0",
+            ])?;
+            ip(&["-n", &h.hub, "link", "set", &hub_if, "up"])?;
+            ip(&["-n", &a, "link", "set", "eth0", "up"])?;
+        }
+        Ok(h)
+    }
+
+    /// The hub's address as seen from actor host `k`.
+    pub fn hub_addr(k: usize) -> String {
+        format!("10.201.{}.1", k + 1)
+    }
+
+    /// Takes actor host `k`'s only link down or up.
+    pub fn set_actor_link(&self, k: usize, up: bool) -> Result<(), String> {
+        ip(&[
+            "-n",
+            &self.actors[k],
+            "link",
+            "set",
+            "eth0",
+            if up { "up" } else { "down" },
+        ])
+    }
+}
+
+impl Drop for Hosts {
+    fn drop(&mut self) {
+        for ns in self.created.drain(..) {
+            if let Err(e) = ip(&["netns", "del", &ns]) {
+                eprintln!("warning: {e}");
+            }
+        }
+    }
+}
+
+/// Makes the test CA, certificates, passwords and router dictionary in `dir`
+/// (`deploy/make-test-ca.sh`), the router's certificate naming `router_ips`.
+pub fn make_secrets(dir: &Path, router_ips: &[String]) -> Result<(), String> {
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("deploy/make-test-ca.sh");
+    let mut c = Command::new("bash");
+    c.arg(&script).arg(dir);
+    for ip in router_ips {
+        c.args(["--router-ip", ip]);
+    }
+    let o = c
+        .output()
+        .map_err(|e| format!("{}: {e}", script.display()))?;
+    if o.status.success() {
+        Ok(())
+    } else {
+        Err(format!(
+            "{} failed: {}{}",
+            script.display(),
+            String::from_utf8_lossy(&o.stdout),
+            String::from_utf8_lossy(&o.stderr)
+        ))
+    }
+}
+
+/// `fsrl router` arguments: `deploy/router.json5` with its certificate and dictionary paths
+/// pointed at `secrets` (made by [`make_secrets`]), plus `extra` `--cfg KEY:VALUE` settings.
+pub fn router_args(secrets: &Path, extra: &[String]) -> Vec<String> {
+    let d = secrets.to_string_lossy();
+    let router = Path::new(env!("CARGO_MANIFEST_DIR")).join("deploy/router.json5");
+    let mut args = vec![
+        "router".to_string(),
+        "--config".into(),
+        router.to_string_lossy().into_owned(),
+    ];
+    let files = [
+        format!("transport/link/tls/root_ca_certificate:\"{d}/certs/ca.crt\""),
+        format!("transport/link/tls/listen_certificate:\"{d}/certs/router.crt\""),
+        format!("transport/link/tls/listen_private_key:\"{d}/certs/router.key\""),
+        format!("transport/auth/usrpwd/dictionary_file:\"{d}/router-users.txt\""),
+    ];
+    for c in files.iter().chain(extra) {
+        args.push("--cfg".into());
+        args.push(c.clone());
+    }
+    args
+}
+
+/// `deploy/<name>` parsed, changed by `edit`, written to `dir/<out>`: the deployed file as an
+/// operator would adapt it (its relative certificate and password paths then resolve in `dir`).
+pub fn adapt_deploy_config(
+    name: &str,
+    dir: &Path,
+    out: &str,
+    edit: impl FnOnce(&mut toml::Table),
+) -> PathBuf {
+    let src = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("deploy")
+        .join(name);
+    let text = std::fs::read_to_string(&src).unwrap_or_else(|e| panic!("{}: {e}", src.display()));
+    let mut t: toml::Table = text
+        .parse()
+        .unwrap_or_else(|e| panic!("{}: {e}", src.display()));
+    edit(&mut t);
+    let path = dir.join(out);
+    std::fs::write(&path, toml::to_string(&t).expect("a TOML table serialises")).unwrap();
+    path
+}
+
+/// `t[a][b]...` as a table, created if missing.
+pub fn table<'a>(t: &'a mut toml::Table, path: &[&str]) -> &'a mut toml::Table {
+    let mut cur = t;
+    for p in path {
+        cur = cur
+            .entry(p.to_string())
+            .or_insert_with(|| toml::Value::Table(toml::Table::new()))
+            .as_table_mut()
+            .expect("a table");
+    }
+    cur
+}
+
+/// Child processes, killed (and reaped) on drop.
+#[derive(Default)]
+pub struct Procs {
+    list: Vec<(String, Child)>,
+}
+
+impl Procs {
+    /// Starts `program ARGS` inside namespace `ns` (`ip netns exec`, which execs: the child's
+    /// pid is the program's), stdout and stderr to `log`.
+    pub fn spawn(
+        &mut self,
+        name: &str,
+        ns: &str,
+        program: &Path,
+        args: &[String],
+        envs: &[(&str, String)],
+        log: &Path,
+    ) {
+        let f = std::fs::File::create(log).unwrap();
+        let child = Command::new("ip")
+            .args(["netns", "exec", ns])
+            .arg(program)
+            .args(args)
+            .envs(envs.iter().map(|(k, v)| (*k, v.as_str())))
+            .stdin(Stdio::null())
+            .stdout(f.try_clone().unwrap())
+            .stderr(f)
+            .spawn()
+            .unwrap_or_else(|e| panic!("cannot start {name}: {e}"));
+        self.list.push((name.to_string(), child));
+    }
+
+    /// Adds an already started child.
+    pub fn adopt(&mut self, name: &str, child: Child) {
+        self.list.push((name.to_string(), child));
+    }
+
+    /// Whether `name` still runs (None if no such process).
+    pub fn running(&mut self, name: &str) -> Option<bool> {
+        let (_, c) = self.list.iter_mut().find(|(n, _)| n == name)?;
+        Some(matches!(c.try_wait(), Ok(None)))
+    }
+
+    /// The processes that have exited, with their status.
+    pub fn exited(&mut self) -> Vec<(String, std::process::ExitStatus)> {
+        self.list
+            .iter_mut()
+            .filter_map(|(n, c)| c.try_wait().ok().flatten().map(|s| (n.clone(), s)))
+            .collect()
+    }
+
+    /// Kills and reaps every process.
+    pub fn kill_all(&mut self) {
+        for (_, c) in &mut self.list {
+            let _ = c.kill();
+        }
+        for (_, c) in &mut self.list {
+            let _ = c.wait();
+        }
+        self.list.clear();
+    }
+}
+
+impl Drop for Procs {
+    fn drop(&mut self) {
+        self.kill_all();
+    }
+}
+
+/// Everything the observer helper reported so far.
+#[derive(Debug, Default)]
+pub struct Seen {
+    /// Latest metric values per sender (`learner-0`, `actor-1`, ...), plus `episodes` and
+    /// `wall_time_s` from the message itself.
+    pub metrics: BTreeMap<String, BTreeMap<String, f64>>,
+    /// Largest `weights_version` metric each sender ever reported.
+    pub max_weights_metric: BTreeMap<String, f64>,
+    /// Every weights version the observer received, in order.
+    pub weights: Vec<u64>,
+    /// Liveliness events: (`joined` | `left`, member).
+    pub membership: Vec<(String, String)>,
+    pub eval_reports: u64,
+    /// Metrics messages carrying the rogue helper's marker.
+    pub rogue_markers: u64,
+    pub ready: bool,
+}
+
+impl Seen {
+    pub fn value(&self, sender: &str, key: &str) -> Option<f64> {
+        self.metrics.get(sender)?.get(key).copied()
+    }
+
+    /// Members (`actor-0#...`) with the given event.
+    pub fn members(&self, event: &str, prefix: &str) -> Vec<String> {
+        self.membership
+            .iter()
+            .filter(|(e, m)| e == event && m.starts_with(prefix))
+            .map(|(_, m)| m.clone())
+            .collect()
+    }
+}
+
+/// The observer helper's reports, gathered by a reader thread from its stdout.
+pub struct Observer {
+    state: Arc<(Mutex<Seen>, Condvar)>,
+}
+
+impl Observer {
+    /// Starts the observer helper (this test/bench binary, `helper_args`) in `ns` with the
+    /// run config `config`; its raw output is copied to `log`.
+    pub fn start(
+        procs: &mut Procs,
+        ns: &str,
+        helper_args: &[String],
+        config: &Path,
+        log: &Path,
+    ) -> Self {
+        let child = Command::new("ip")
+            .args(["netns", "exec", ns])
+            .arg(std::env::current_exe().unwrap())
+            .args(helper_args)
+            .env(HELPER_ENV, "observer")
+            .env(CONFIG_ENV, config)
+            .stdin(Stdio::null())
+            .stdout(Stdio::piped())
+            .stderr(std::fs::File::create(log.with_extension("err")).unwrap())
+            .spawn()
+            .expect("cannot start the observer helper");
+        let mut child = child;
+        let stdout = child.stdout.take().expect("piped");
+        procs.adopt("observer", child);
+        let state = Arc::new((Mutex::new(Seen::default()), Condvar::new()));
+        let st = Arc::clone(&state);
+        let mut raw = std::fs::File::create(log).unwrap();
+        std::thread::spawn(move || {
+            for line in BufReader::new(stdout).lines() {
+                let Ok(line) = line else { break };
+                let _ = writeln!(raw, "{line}");
+                let Ok(v) = serde_json::from_str::<serde_json::Value>(&line) else {
+                    continue;
+                };
+                let (m, cv) = &*st;
+                let mut s = m.lock().unwrap_or_else(|p| p.into_inner());
+                absorb(&mut s, &v);
+                cv.notify_all();
+            }
+        });
+        Self { state }
+    }
+
+    /// Reads the state.
+    pub fn with<R>(&self, f: impl FnOnce(&Seen) -> R) -> R {
+        f(&self.state.0.lock().unwrap_or_else(|p| p.into_inner()))
+    }
+
+    /// Waits until `pred` holds on what the observer saw, up to `timeout`.
+    pub fn wait_until(
+        &self,
+        timeout: Duration,
+        mut pred: impl FnMut(&Seen) -> bool,
+    ) -> Result<Duration, ()> {
+        let start = Instant::now();
+        let (m, cv) = &*self.state;
+        let mut s = m.lock().unwrap_or_else(|p| p.into_inner());
+        loop {
+            if pred(&s) {
+                return Ok(start.elapsed());
+            }
+            let left = timeout.saturating_sub(start.elapsed());
+            if left.is_zero() {
+                return Err(());
+            }
+            s = cv
+                .wait_timeout(s, left)
+                .unwrap_or_else(|p| p.into_inner())
+                .0;
+        }
+    }
+}
+
+fn absorb(s: &mut Seen, v: &serde_json::Value) {
+    let str_of = |k: &str| v[k].as_str().unwrap_or("").to_string();
+    match v["k"].as_str() {
+        Some("ready") => s.ready = true,
+        Some("metrics") => {
+            let sender = str_of("sender");
+            let mut vals: BTreeMap<String, f64> = v["values"]
+                .as_object()
+                .map(|o| {
+                    o.iter()
+                        .filter_map(|(k, x)| x.as_f64().map(|x| (k.clone(), x)))
+                        .collect()
+                })
+                .unwrap_or_default();
+            if vals.contains_key("rogue_marker") {
+                s.rogue_markers += 1;
+                return;
+            }
+            if let Some(w) = vals.get("weights_version") {
+                let e = s.max_weights_metric.entry(sender.clone()).or_insert(0.0);
+                *e = e.max(*w);
+            }
+            vals.insert("msg_episodes".into(), v["episodes"].as_f64().unwrap_or(0.0));
+            vals.insert(
+                "msg_wall_time_s".into(),
+                v["wall_time_s"].as_f64().unwrap_or(0.0),
+            );
+            s.metrics.insert(sender, vals);
+        }
+        Some("weights") => s.weights.push(v["version"].as_u64().unwrap_or(0)),
+        Some(e @ ("joined" | "left")) => s.membership.push((e.to_string(), str_of("member"))),
+        Some("eval") => s.eval_reports += 1,
+        _ => {}
+    }
+}
+
+/// Runs a helper (`observer`, `rogue`, `latency-pub`, `latency-sub`) in this process, as told
+/// by the environment, printing JSON lines on stdout. Returns false when this process is not
+/// a helper.
+pub fn helper_main() -> bool {
+    let Ok(mode) = std::env::var(HELPER_ENV) else {
+        return false;
+    };
+    if let Err(e) = run_helper(&mode) {
+        emit(serde_json::json!({"k": "error", "e": e}));
+        eprintln!("helper {mode}: {e}");
+        std::process::exit(1);
+    }
+    true
+}
+
+fn emit(v: serde_json::Value) {
+    let mut out = std::io::stdout().lock();
+    let _ = writeln!(out, "{v}");
+    let _ = out.flush();
+}
+
+/// `[run]` and `[transport.zenoh]` of a run config, as the fsrl binary reads them.
+fn helper_transport(role: Role, index: u32) -> Result<(TransportConfig, String), String> {
+    let path = PathBuf::from(std::env::var(CONFIG_ENV).map_err(|_| "no config given")?);
+    let text = std::fs::read_to_string(&path).map_err(|e| format!("{}: {e}", path.display()))?;
+    let t: toml::Table = text
+        .parse()
+        .map_err(|e| format!("{}: {e}", path.display()))?;
+    let run = t
+        .get("run")
+        .and_then(|r| r.get("id"))
+        .and_then(|v| v.as_str())
+        .ok_or("no run.id")?
+        .to_string();
+    let method = t
+        .get("run")
+        .and_then(|r| r.get("method"))
+        .and_then(|v| v.as_str())
+        .unwrap_or("fsrl")
+        .to_string();
+    let z = t
+        .get("transport")
+        .and_then(|x| x.get("zenoh"))
+        .cloned()
+        .ok_or("no [transport.zenoh]")?;
+    let mut zenoh: ZenohConfig = z.try_into().map_err(|e: toml::de::Error| e.to_string())?;
+    zenoh.resolve_paths(path.parent().unwrap_or(Path::new("/")));
+    let mut cfg = TransportConfig::new(
+        RunId::new(run).map_err(|e| e.to_string())?,
+        SenderId::new(role, index),
+    );
+    cfg.zenoh = zenoh;
+    Ok((cfg, method))
+}
+
+/// CLOCK_MONOTONIC in ns: the same clock in every network namespace of the machine.
+pub fn monotonic_ns() -> u64 {
+    let mut ts = libc::timespec {
+        tv_sec: 0,
+        tv_nsec: 0,
+    };
+    // SAFETY: `ts` is a valid, writable timespec.
+    unsafe { libc::clock_gettime(libc::CLOCK_MONOTONIC, &mut ts) };
+    ts.tv_sec as u64 * 1_000_000_000 + ts.tv_nsec as u64
+}
+
+fn rogue_weights(method: &str, version: u64) -> Result<proto::Weights, String> {
+    let m: policy::method::Method = method.parse().map_err(|e| format!("{e}"))?;
+    let net_cfg = m.net().ok_or("method without a network")?;
+    let net = policy::ValueNet::new(net_cfg, 7).map_err(|e| e.to_string())?;
+    policy::wire::weights_message(&net, version).map_err(|e| e.to_string())
+}
+
+fn run_helper(mode: &str) -> Result<(), String> {
+    match mode {
+        "observer" => observer(),
+        "rogue" => rogue(),
+        "latency-pub" => latency_pub(),
+        "latency-sub" => latency_sub(),
+        m => Err(format!("unknown helper {m}")),
+    }
+}
+
+/// Subscribes (monitor role) to metrics, weights, evaluation reports and liveliness of the
+/// run and prints every one.
+fn observer() -> Result<(), String> {
+    let (cfg, _) = helper_transport(Role::Monitor, 900)?;
+    let t = open_retrying(cfg, Duration::from_secs(60))?;
+    let run = t.run().clone();
+    let e = |e: transport::TransportError| e.to_string();
+    let metrics = t.subscriber(&keys::all_metrics(&run)).map_err(e)?;
+    let reports = t.subscriber(&keys::all_eval_reports(&run)).map_err(e)?;
+    let weights = t.latest_subscriber(&keys::weights(&run)).map_err(e)?;
+    let alive = t.watch_alive().map_err(e)?;
+    std::thread::spawn(move || loop {
+        match weights.next(Duration::from_secs(1)) {
+            Ok(Some(w)) => emit(serde_json::json!({
+                "k": "weights", "version": w.body.version, "sender": w.header.sender.to_string()
+            })),
+            Ok(None) => {}
+            Err(_) => return,
+        }
+    });
+    std::thread::spawn(move || loop {
+        match alive.recv_timeout(Duration::from_secs(1)) {
+            Ok(Some(transport::AliveEvent::Joined(m))) => {
+                emit(serde_json::json!({"k": "joined", "member": m.to_string()}))
+            }
+            Ok(Some(transport::AliveEvent::Left(m))) => {
+                emit(serde_json::json!({"k": "left", "member": m.to_string()}))
+            }
+            Ok(None) => {}
+            Err(_) => return,
+        }
+    });
+    std::thread::spawn(move || loop {
+        match reports.recv_timeout(Duration::from_secs(1)) {
+            Ok(Some(r)) => {
+                emit(serde_json::json!({"k": "eval", "sender": r.header.sender.to_string()}))
+            }
+            Ok(None) => {}
+            Err(_) => return,
+        }
+    });
+    emit(serde_json::json!({"k": "ready"}));
+    loop {
+        if let Some(m) = metrics.recv_timeout(Duration::from_secs(1)).map_err(e)? {
+            emit(serde_json::json!({
+                "k": "metrics",
+                "sender": m.header.sender.to_string(),
+                "episodes": m.body.episodes,
+                "wall_time_s": m.body.wall_time_s,
+                "values": m.body.values,
+            }));
+        }
+    }
+}
+
+fn open_retrying(cfg: TransportConfig, patience: Duration) -> Result<Transport, String> {
+    let start = Instant::now();
+    loop {
+        match Transport::open(cfg.clone()) {
+            Ok(t) => return Ok(t),
+            Err(e) if start.elapsed() >= patience => return Err(e.to_string()),
+            Err(_) => std::thread::sleep(Duration::from_millis(200)),
+        }
+    }
+}
+
+/// Tries to publish weights of version [`ROGUE_VERSION`] (the real wire format, a valid network
+/// of the run's method, the learner's sender id in the header), as the latest value (publisher
+/// plus queryable, like the learner). Also publishes a marked metrics message on an actor's
+/// metrics key, which an actor's credentials may publish: seeing it proves the session was up.
+fn rogue() -> Result<(), String> {
+    let (cfg, method) = helper_transport(Role::Learner, 0)?;
+    let mut last = String::new();
+    let mut t = None;
+    for _ in 0..3 {
+        match Transport::open(cfg.clone()) {
+            Ok(x) => {
+                t = Some(x);
+                break;
+            }
+            Err(e) => last = e.to_string(),
+        }
+    }
+    let Some(t) = t else {
+        emit(serde_json::json!({"k": "open_failed", "e": last}));
+        return Ok(());
+    };
+    emit(serde_json::json!({"k": "opened"}));
+    let run = t.run().clone();
+    let e = |e: transport::TransportError| e.to_string();
+    let w = rogue_weights(&method, ROGUE_VERSION)?;
+    let weights = t.latest_publisher(&keys::weights(&run)).map_err(e)?;
+    let marker = t
+        .publisher(&keys::metrics(&run, SenderId::new(Role::Actor, 99)))
+        .map_err(e)?;
+    let mut m = Metrics::default();
+    m.values.insert("rogue_marker".into(), 1.0);
+    for _ in 0..30 {
+        weights.publish(ROGUE_VERSION, &w).map_err(e)?;
+        marker.publish(0, &m).map_err(e)?;
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    emit(serde_json::json!({"k": "done"}));
+    Ok(())
+}
+
+/// Publishes `N` weight messages (versions 1..=N) every `MS` ms (`ARG_ENV` = `N,MS`), printing
+/// each one's monotonic send time.
+fn latency_pub() -> Result<(), String> {
+    let (cfg, method) = helper_transport(Role::Learner, 0)?;
+    let arg = std::env::var(ARG_ENV).unwrap_or_else(|_| "300,20".into());
+    let (n, ms) = arg
+        .split_once(',')
+        .and_then(|(a, b)| Some((a.parse::<u64>().ok()?, b.parse::<u64>().ok()?)))
+        .ok_or("ARG must be N,MS")?;
+    let t = open_retrying(cfg, Duration::from_secs(30))?;
+    let run = t.run().clone();
+    let e = |e: transport::TransportError| e.to_string();
+    let mut w = rogue_weights(&method, 1)?;
+    let publisher = t.latest_publisher(&keys::weights(&run)).map_err(e)?;
+    emit(serde_json::json!({"k": "ready"}));
+    // Give subscribers' declarations time to reach us (they are already running).
+    publisher
+        .wait_for_subscribers(Duration::from_secs(10))
+        .map_err(e)?;
+    std::thread::sleep(Duration::from_millis(500));
+    for v in 1..=n {
+        w.version = v;
+        let t0 = monotonic_ns();
+        publisher.publish(v, &w).map_err(e)?;
+        emit(serde_json::json!({"k": "sent", "v": v, "t": t0}));
+        std::thread::sleep(Duration::from_millis(ms));
+    }
+    emit(serde_json::json!({"k": "done"}));
+    // Stay until killed: leaving early would only race with the last deliveries.
+    loop {
+        std::thread::sleep(Duration::from_secs(1));
+    }
+}
+
+/// Receives weights and prints each one's version and monotonic receive time (after decoding
+/// and validation, as an actor would use them).
+fn latency_sub() -> Result<(), String> {
+    let index = std::env::var(ARG_ENV)
+        .ok()
+        .and_then(|a| a.parse().ok())
+        .unwrap_or(0);
+    let (cfg, _) = helper_transport(Role::Actor, index)?;
+    let t = open_retrying(cfg, Duration::from_secs(30))?;
+    let run = t.run().clone();
+    let e = |e: transport::TransportError| e.to_string();
+    let weights = t.latest_subscriber(&keys::weights(&run)).map_err(e)?;
+    emit(serde_json::json!({"k": "ready"}));
+    loop {
+        if let Some(w) = weights.next(Duration::from_secs(1)).map_err(e)? {
+            let t1 = monotonic_ns();
+            emit(serde_json::json!({"k": "recv", "v": w.body.version, "t": t1}));
+        }
+    }
+}
