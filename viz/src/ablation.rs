@@ -48,7 +48,7 @@ fn metric_panel<DB: DrawingBackend>(
     let mut chart = ChartBuilder::on(area)
         .caption(caption, style::bold(16.0))
         .margin(10)
-        .x_label_area_size(28)
+        .x_label_area_size(40)
         .y_label_area_size(52)
         .build_cartesian_2d(0.0..m as f64, 0.0..top)?;
     chart

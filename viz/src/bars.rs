@@ -54,7 +54,7 @@ pub(crate) fn outcome_panel<DB: DrawingBackend>(
     let mut chart = ChartBuilder::on(area)
         .caption(caption, style::bold(16.0))
         .margin(10)
-        .x_label_area_size(28)
+        .x_label_area_size(40)
         .y_label_area_size(48)
         .build_cartesian_2d(0.0..m as f64, 0.0..1.05)?;
     chart

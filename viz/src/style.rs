@@ -129,13 +129,70 @@ pub fn category_labels<DB: DrawingBackend>(
     labels: &[String],
 ) -> Result<(), DrawError> {
     let (bx, by) = area.get_base_pixel();
+    // Room per label: the distance between neighbouring category centres, less a margin.
+    let slot = (to_pixel(1.5).0 - to_pixel(0.5).0).abs().max(1) as u32;
+    let room = slot.saturating_sub(6).max(1);
+    let width = |text: &str, size: f64| {
+        area.estimate_text_size(text, &font(size))
+            .map_or(u32::MAX, |(w, _)| w)
+    };
     for (j, label) in labels.iter().enumerate() {
         let (x, y) = to_pixel(j as f64 + 0.5);
-        area.draw(&Text::new(
-            label.clone(),
-            (x - bx, y - by + 6),
-            font(13.0).pos(Pos::new(HPos::Center, VPos::Top)),
-        ))?;
+        // The largest size (13 → 10 px) at which the label fits on one line; otherwise two
+        // lines split at the '+' or space nearest the middle, at the size where both fit.
+        let one_line = [13.0, 12.0, 11.0, 10.0]
+            .into_iter()
+            .find(|&size| width(label, size) <= room);
+        let lines: Vec<String> = match one_line {
+            Some(_) => vec![label.clone()],
+            None => split_near_middle(label),
+        };
+        let size = [13.0, 12.0, 11.0, 10.0, 9.0]
+            .into_iter()
+            .find(|&size| lines.iter().all(|l| width(l, size) <= room))
+            .unwrap_or(9.0);
+        for (k, line) in lines.iter().enumerate() {
+            area.draw(&Text::new(
+                line.clone(),
+                (x - bx, y - by + 6 + k as i32 * (size as i32 + 2)),
+                font(size).pos(Pos::new(HPos::Center, VPos::Top)),
+            ))?;
+        }
     }
     Ok(())
+}
+
+/// `label` in two lines, split before the '+' or at the space nearest its middle; one line if
+/// it has neither.
+fn split_near_middle(label: &str) -> Vec<String> {
+    let mid = label.chars().count() / 2;
+    let best = label
+        .char_indices()
+        .filter(|(_, c)| *c == '+' || *c == ' ')
+        .min_by_key(|(i, _)| i.abs_diff(mid));
+    match best {
+        Some((i, ' ')) => vec![label[..i].to_string(), label[i + 1..].to_string()],
+        Some((i, _)) if i > 0 => vec![label[..i].to_string(), label[i..].to_string()],
+        _ => vec![label.to_string()],
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::split_near_middle;
+
+    #[test]
+    fn long_labels_split_at_the_plus_or_space_nearest_the_middle() {
+        assert_eq!(
+            split_near_middle("sarl+efficiency (1)"),
+            ["sarl", "+efficiency (1)"]
+        );
+        assert_eq!(
+            split_near_middle("sarl+foresight (1)"),
+            ["sarl", "+foresight (1)"]
+        );
+        assert_eq!(split_near_middle("success rate"), ["success", "rate"]);
+        assert_eq!(split_near_middle("+R_f"), ["+R_f"]);
+        assert_eq!(split_near_middle("orca"), ["orca"]);
+    }
 }
