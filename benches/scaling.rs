@@ -15,12 +15,34 @@ const MEASURE: Duration = Duration::from_secs(20);
 
 struct Procs(Vec<Child>);
 impl Drop for Procs {
+    /// SIGTERM first, so that every process stops cleanly and removes its iceoryx2 shared
+    /// memory (SIGKILL would leave it in /dev/shm); SIGKILL whatever is still running after 10 s.
     fn drop(&mut self) {
+        for c in &self.0 {
+            // SAFETY: kill(2) on the pid of a child we have not yet waited for.
+            unsafe {
+                libc::kill(c.id() as libc::pid_t, libc::SIGTERM);
+            }
+        }
+        let deadline = Instant::now() + Duration::from_secs(10);
         for c in &mut self.0 {
+            while matches!(c.try_wait(), Ok(None)) && Instant::now() < deadline {
+                std::thread::sleep(Duration::from_millis(50));
+            }
             let _ = c.kill();
             let _ = c.wait();
         }
     }
+}
+
+fn shm_entries() -> Vec<String> {
+    std::fs::read_dir("/dev/shm")
+        .map(|d| {
+            d.flatten()
+                .map(|e| e.file_name().to_string_lossy().into_owned())
+                .collect()
+        })
+        .unwrap_or_default()
 }
 
 fn episodes_per_s(actors: u32) -> f64 {
@@ -106,6 +128,7 @@ fn main() {
     if std::env::args().any(|a| a == "--list") {
         return;
     }
+    let shm_before = shm_entries();
     let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
     let mut rows = Vec::new();
     for actors in [1, 2, 4] {
@@ -118,5 +141,13 @@ fn main() {
     println!("| actors | episodes/s | vs 1 actor |\n|---|---|---|");
     for (a, r) in &rows {
         println!("| {a} | {r:.2} | {:.2}x |", r / base);
+    }
+    let leaked = shm_entries()
+        .into_iter()
+        .filter(|e| !shm_before.contains(e) && e.starts_with("fsrl_scale"))
+        .count();
+    if leaked > 0 {
+        eprintln!("warning: {leaked} shared-memory files left in /dev/shm by the processes");
+        std::process::exit(1);
     }
 }
