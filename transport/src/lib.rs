@@ -514,21 +514,13 @@ impl Receiver {
     /// Decodes and checks one message; `source` (who sent it) is formatted only when the
     /// message is rejected.
     fn accept<M: Body>(&self, bytes: &[u8], source: &dyn fmt::Display) -> Option<Message<M>> {
-        match proto::decode_with_limit::<M>(bytes, self.limit) {
-            Ok(m) if m.header.run == self.run => Some(m),
-            Ok(m) => {
-                self.rejected.reject(
-                    &source.to_string(),
-                    &Rejection::WrongRun(m.header.run.to_string()),
-                );
-                None
-            }
-            Err(e) => {
-                self.rejected
-                    .reject(&source.to_string(), &Rejection::Decode(e));
-                None
-            }
-        }
+        let why = match proto::decode_with_limit::<M>(bytes, self.limit) {
+            Ok(m) if m.header.run == self.run => return Some(m),
+            Ok(m) => Rejection::WrongRun(m.header.run.to_string()),
+            Err(e) => Rejection::Decode(e),
+        };
+        self.rejected.reject(source, &why);
+        None
     }
 }
 

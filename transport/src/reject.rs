@@ -59,18 +59,19 @@ impl RejectCounter {
     }
 
     /// Counts a rejected message from `source` (a key expression or publisher id) and logs
-    /// it if it is the first from that source.
-    pub(crate) fn reject(&self, source: &str, why: &Rejection) {
+    /// it if it is the first from that source. `source` is formatted here, only on rejection.
+    pub(crate) fn reject(&self, source: &dyn std::fmt::Display, why: &Rejection) {
         self.local.fetch_add(1, Ordering::Relaxed);
         self.shared.total.fetch_add(1, Ordering::Relaxed);
+        let source = source.to_string();
         let first = match self.shared.warned.lock() {
-            Ok(mut w) => w.insert(source.to_string()),
-            Err(poisoned) => poisoned.into_inner().insert(source.to_string()),
+            Ok(mut w) => w.insert(source.clone()),
+            Err(poisoned) => poisoned.into_inner().insert(source.clone()),
         };
         if first {
             tracing::warn!(
                 topic = %self.topic,
-                source,
+                source = %source,
                 error = %why,
                 "rejected a message (further rejections from this source are only counted)"
             );
