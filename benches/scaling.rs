@@ -4,11 +4,15 @@
 //!
 //! `cargo bench -p fsrl --bench scaling`
 
+#[path = "../tests/shm_support/mod.rs"]
+mod shm_support;
+
 use std::net::TcpListener;
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
 use proto::{keys, Role, RunId, SenderId};
+use shm_support::ShmSnapshot;
 use transport::{Transport, TransportConfig, ZenohConfig};
 
 const MEASURE: Duration = Duration::from_secs(20);
@@ -33,16 +37,6 @@ impl Drop for Procs {
             let _ = c.wait();
         }
     }
-}
-
-fn shm_entries() -> Vec<String> {
-    std::fs::read_dir("/dev/shm")
-        .map(|d| {
-            d.flatten()
-                .map(|e| e.file_name().to_string_lossy().into_owned())
-                .collect()
-        })
-        .unwrap_or_default()
 }
 
 fn episodes_per_s(actors: u32) -> f64 {
@@ -128,7 +122,7 @@ fn main() {
     if std::env::args().any(|a| a == "--list") {
         return;
     }
-    let shm_before = shm_entries();
+    let shm_before = ShmSnapshot::take();
     let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
     let mut rows = Vec::new();
     for actors in [1, 2, 4] {
@@ -142,10 +136,7 @@ fn main() {
     for (a, r) in &rows {
         println!("| {a} | {r:.2} | {:.2}x |", r / base);
     }
-    let leaked = shm_entries()
-        .into_iter()
-        .filter(|e| !shm_before.contains(e) && e.starts_with("fsrl_scale"))
-        .count();
+    let leaked = shm_before.new_since(|e| e.starts_with("fsrl_scale")).len();
     if leaked > 0 {
         eprintln!("warning: {leaked} shared-memory files left in /dev/shm by the processes");
         std::process::exit(1);

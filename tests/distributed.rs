@@ -2,6 +2,8 @@
 //! over iceoryx2. Readiness comes from liveliness and live metrics (a monitor transport in the
 //! test), never from sleeping.
 
+mod shm_support;
+
 use std::collections::BTreeMap;
 use std::net::TcpListener;
 use std::path::{Path, PathBuf};
@@ -9,6 +11,7 @@ use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
 use proto::{keys, Metrics, Role, RunId, SenderId};
+use shm_support::ShmSnapshot;
 use transport::{DataPlane, Subscriber, Transport, TransportConfig, ZenohConfig};
 
 const TIMEOUT: Duration = Duration::from_secs(180);
@@ -221,23 +224,10 @@ fn learner_and_actor_train_over_zenoh() {
 
 #[test]
 fn learner_and_actor_train_over_iceoryx2_and_clean_up_shared_memory() {
-    let before: Vec<String> = shm_entries();
+    let before = ShmSnapshot::take();
     two_process_run("iceoryx2");
-    let leaked: Vec<String> = shm_entries()
-        .into_iter()
-        .filter(|e| !before.contains(e) && e.contains("fsrl"))
-        .collect();
+    let leaked = before.new_since(|e| e.contains("fsrl"));
     assert!(leaked.is_empty(), "shared memory left behind: {leaked:?}");
-}
-
-fn shm_entries() -> Vec<String> {
-    std::fs::read_dir("/dev/shm")
-        .map(|d| {
-            d.flatten()
-                .map(|e| e.file_name().to_string_lossy().into_owned())
-                .collect()
-        })
-        .unwrap_or_default()
 }
 
 #[test]
@@ -472,7 +462,7 @@ fn live_metrics_are_readable_by_fsrl_watch_and_by_python() {
 fn one_command_local_training_runs_every_process_and_leaves_a_run_directory() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("local-run");
-    let before = shm_entries();
+    let before = ShmSnapshot::take();
     let o = Command::new(env!("CARGO_BIN_EXE_fsrl"))
         .args([
             "train",
@@ -525,10 +515,7 @@ fn one_command_local_training_runs_every_process_and_leaves_a_run_directory() {
             .count()
             >= 1
     );
-    let leaked: Vec<String> = shm_entries()
-        .into_iter()
-        .filter(|e| !before.contains(e) && e.contains("fsrl"))
-        .collect();
+    let leaked = before.new_since(|e| e.contains("fsrl"));
     assert!(leaked.is_empty(), "shared memory left behind: {leaked:?}");
     // The same command again refuses to overwrite the run.
     let o = Command::new(env!("CARGO_BIN_EXE_fsrl"))

@@ -14,12 +14,14 @@
 //! (and skips the final clean-up checks) after a passing run.
 
 mod multihost_support;
+mod shm_support;
 
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 use mh::{adapt_deploy_config, table, Hosts, Observer, Procs, Seen, ROGUE_VERSION};
 use multihost_support as mh;
+use shm_support::ShmSnapshot;
 
 /// Longest wait for any one step.
 const STEP: Duration = Duration::from_secs(90);
@@ -242,16 +244,6 @@ impl Cluster {
     }
 }
 
-fn shm_entries() -> Vec<String> {
-    std::fs::read_dir("/dev/shm")
-        .map(|d| {
-            d.flatten()
-                .map(|e| e.file_name().to_string_lossy().into_owned())
-                .collect()
-        })
-        .unwrap_or_default()
-}
-
 fn actor_members(s: &Seen, event: &str, index: u32) -> Vec<String> {
     s.members(event, &format!("actor-{index}#"))
 }
@@ -266,7 +258,7 @@ fn training_across_emulated_hosts_survives_a_link_outage_and_refuses_rogue_weigh
         return;
     }
     let t0 = Instant::now();
-    let shm_before = shm_entries();
+    let shm_before = ShmSnapshot::take();
     let mut c = Cluster::new(Hosts::create("t").expect("creating the emulated hosts"));
     let hub = c.hosts.hub.clone();
     let [a1, a2] = c.hosts.actors.clone();
@@ -495,12 +487,7 @@ fn training_across_emulated_hosts_survives_a_link_outage_and_refuses_rogue_weigh
         assert!(!listed.contains(n.as_str()), "namespace {n} left behind");
     }
     assert!(!dir.exists(), "{} left behind", dir.display());
-    let leaked: Vec<String> = shm_entries()
-        .into_iter()
-        .filter(|e| {
-            !shm_before.contains(e)
-                && (e.contains("zenoh") || e.contains("fsrl") || e.contains(&run_id))
-        })
-        .collect();
+    let leaked =
+        shm_before.new_since(|e| e.contains("zenoh") || e.contains("fsrl") || e.contains(&run_id));
     assert!(leaked.is_empty(), "shared memory left behind: {leaked:?}");
 }
