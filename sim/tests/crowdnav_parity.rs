@@ -8,7 +8,7 @@
 //! cases is checked the same way). Run with `--nocapture` to see the aggregates, also under
 //! SPEC's default semantics.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use sim::config::Kinematics;
 use sim::{
@@ -24,7 +24,7 @@ const NAV_TIME_TOLERANCE_S: f64 = 0.1;
 fn data_dir() -> PathBuf {
     match std::env::var_os("FSRL_CROWDNAV_OUTCOMES_DIR") {
         Some(d) => PathBuf::from(d),
-        None => manifest_dir().join("../../shared/data/crowdnav_cases"),
+        None => Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data/crowdnav_cases"),
     }
 }
 
@@ -513,12 +513,4 @@ fn the_holonomic_orca_robot_executes_orcas_velocity() {
         env.step_velocity(Vec2::new(0.0, 1.0)),
         Err(sim::EnvError::NotHolonomic(Kinematics::Unicycle))
     ));
-}
-
-/// The crate's directory: cargo's run-time `CARGO_MANIFEST_DIR` (correct even when a reused
-/// target directory holds a binary built from a checkout elsewhere), else the build-time one.
-fn manifest_dir() -> PathBuf {
-    std::env::var_os("CARGO_MANIFEST_DIR")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")))
 }

@@ -117,7 +117,9 @@ fn csv_files(dir: &Path, out: &mut Vec<PathBuf>) {
 fn one_step_velocities_match_rvo2() {
     let dir = std::env::var_os("FSRL_ORCA_REF_DIR")
         .map(PathBuf::from)
-        .unwrap_or_else(|| manifest_dir().join("../../shared/data/orca_ref"));
+        .unwrap_or_else(|| {
+            Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data/orca_ref")
+        });
     let mut files = Vec::new();
     csv_files(&dir, &mut files);
     files.sort();
@@ -178,12 +180,4 @@ fn one_step_velocities_match_rvo2() {
         "ORCA differs from RVO2 by more than {TOLERANCE_MPS} m/s:\n{}",
         failures.join("\n")
     );
-}
-
-/// The crate's directory: cargo's run-time `CARGO_MANIFEST_DIR` (correct even when a reused
-/// target directory holds a binary built from a checkout elsewhere), else the build-time one.
-fn manifest_dir() -> PathBuf {
-    std::env::var_os("CARGO_MANIFEST_DIR")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")))
 }
