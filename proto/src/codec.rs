@@ -7,6 +7,7 @@
 //! [`DecodeError`].
 
 use std::io;
+use std::mem::MaybeUninit;
 
 use serde::de::IgnoredAny;
 use serde::{Deserialize, Serialize};
@@ -38,19 +39,11 @@ pub fn encode_into<B: Body>(
     buf: &mut Vec<u8>,
     limit: usize,
 ) -> Result<(), EncodeError> {
-    if header.kind != B::KIND {
-        return Err(ValidationError::InvalidField {
-            field: "header.kind",
-            reason: format!("header says {}, body is {}", header.kind, B::KIND),
-        }
-        .into());
-    }
-    body.validate()?;
+    check_encodable(header, body)?;
     buf.clear();
-    let mut ser = rmp_serde::Serializer::new(&mut *buf).with_struct_map();
-    MessageRef { header, body }
-        .serialize(&mut ser)
-        .map_err(|e| EncodeError::Serialize(e.to_string()))?;
+    if !B::encode_direct(header, body, buf) {
+        serde_encode(header, body, buf)?;
+    }
     if buf.len() > limit {
         return Err(EncodeError::Oversized {
             len: buf.len(),
@@ -60,6 +53,75 @@ pub fn encode_into<B: Body>(
     Ok(())
 }
 
+/// A validated message whose exact encoded length is known before it is written, so that it
+/// can be encoded straight into memory the caller provides (a shared-memory sample) instead of
+/// into a buffer that is then copied. See [`prepare`].
+#[derive(Debug)]
+pub struct Prepared<'a, B> {
+    header: &'a Header,
+    body: &'a B,
+    len: usize,
+}
+
+impl<B: Body> Prepared<'_, B> {
+    /// The exact number of bytes [`Prepared::write`] writes.
+    pub fn encoded_len(&self) -> usize {
+        self.len
+    }
+
+    /// Encodes the message into `out`, which must be exactly [`Prepared::encoded_len`] bytes
+    /// long, and returns the now initialised bytes: the same bytes [`encode`] produces.
+    pub fn write<'o>(&self, out: &'o mut [MaybeUninit<u8>]) -> Result<&'o mut [u8], EncodeError> {
+        if out.len() != self.len || !B::direct_write(self.header, self.body, out) {
+            return Err(EncodeError::Serialize(format!(
+                "a destination of {} bytes for a message of {} bytes",
+                out.len(),
+                self.len
+            )));
+        }
+        // SAFETY: `direct_write` returned true, so it wrote every one of the `out.len()` bytes
+        // (see `Body::direct_write`); `MaybeUninit<u8>` has the layout of `u8`, and the
+        // returned slice takes over `out`'s unique borrow.
+        Ok(unsafe { std::slice::from_raw_parts_mut(out.as_mut_ptr().cast::<u8>(), out.len()) })
+    }
+}
+
+/// Validates `header` + `body` (as [`encode_into`] does) and measures the encoding, for messages
+/// with a hand-written codec (episode batches); `Ok(None)` for the others, which encode with
+/// [`encode_into`].
+pub fn prepare<'a, B: Body>(
+    header: &'a Header,
+    body: &'a B,
+    limit: usize,
+) -> Result<Option<Prepared<'a, B>>, EncodeError> {
+    let Some(len) = B::direct_len(header, body) else {
+        return Ok(None);
+    };
+    check_encodable(header, body)?;
+    if len > limit {
+        return Err(EncodeError::Oversized { len, limit });
+    }
+    Ok(Some(Prepared { header, body, len }))
+}
+
+fn check_encodable<B: Body>(header: &Header, body: &B) -> Result<(), EncodeError> {
+    if header.kind != B::KIND {
+        return Err(ValidationError::InvalidField {
+            field: "header.kind",
+            reason: format!("header says {}, body is {}", header.kind, B::KIND),
+        }
+        .into());
+    }
+    Ok(body.validate()?)
+}
+
+fn serde_encode<B: Body>(header: &Header, body: &B, buf: &mut Vec<u8>) -> Result<(), EncodeError> {
+    let mut ser = rmp_serde::Serializer::new(&mut *buf).with_struct_map();
+    MessageRef { header, body }
+        .serialize(&mut ser)
+        .map_err(|e| EncodeError::Serialize(e.to_string()))
+}
+
 /// Decodes and validates a message of type `B` no larger than [`DEFAULT_MAX_MESSAGE_BYTES`].
 pub fn decode<B: Body>(bytes: &[u8]) -> Result<Message<B>, DecodeError> {
     decode_with_limit(bytes, DEFAULT_MAX_MESSAGE_BYTES)
@@ -67,6 +129,24 @@ pub fn decode<B: Body>(bytes: &[u8]) -> Result<Message<B>, DecodeError> {
 
 /// Decodes and validates a message of type `B` no larger than `limit` bytes.
 pub fn decode_with_limit<B: Body>(bytes: &[u8], limit: usize) -> Result<Message<B>, DecodeError> {
+    decode_checked(bytes, limit, true)
+}
+
+/// [`decode_with_limit`] through serde alone, never the hand-written decoder of
+/// [`Body::decode_direct`]: the reference the tests compare that decoder with.
+#[doc(hidden)]
+pub fn decode_with_limit_serde<B: Body>(
+    bytes: &[u8],
+    limit: usize,
+) -> Result<Message<B>, DecodeError> {
+    decode_checked(bytes, limit, false)
+}
+
+fn decode_checked<B: Body>(
+    bytes: &[u8],
+    limit: usize,
+    direct: bool,
+) -> Result<Message<B>, DecodeError> {
     if bytes.len() > limit {
         return Err(DecodeError::Oversized {
             len: bytes.len(),
@@ -76,6 +156,30 @@ pub fn decode_with_limit<B: Body>(bytes: &[u8], limit: usize) -> Result<Message<
     if bytes.is_empty() {
         return Err(DecodeError::Truncated);
     }
+    // The hand-written decoder takes the common case; serde decodes (and explains) the rest.
+    let message = match direct.then(|| B::decode_direct(bytes)).flatten() {
+        Some(m) => m,
+        None => serde_decode(bytes)?,
+    };
+    let header = &message.header;
+    if header.protocol_version != PROTOCOL_VERSION {
+        return Err(DecodeError::WrongProtocolVersion {
+            found: header.protocol_version,
+            expected: PROTOCOL_VERSION,
+        });
+    }
+    if header.kind != B::KIND {
+        return Err(DecodeError::WrongKind {
+            expected: B::KIND,
+            found: header.kind,
+        });
+    }
+    message.body.validate()?;
+    Ok(message)
+}
+
+/// The message's structure through serde, with no bytes left over.
+fn serde_decode<B: Body>(bytes: &[u8]) -> Result<Message<B>, DecodeError> {
     let mut de = rmp_serde::Deserializer::from_read_ref(bytes);
     de.set_max_depth(MAX_DEPTH);
     let message = match Message::<B>::deserialize(&mut de) {
@@ -104,20 +208,6 @@ pub fn decode_with_limit<B: Body>(bytes: &[u8], limit: usize) -> Result<Message<
             ));
         }
     }
-    let header = &message.header;
-    if header.protocol_version != PROTOCOL_VERSION {
-        return Err(DecodeError::WrongProtocolVersion {
-            found: header.protocol_version,
-            expected: PROTOCOL_VERSION,
-        });
-    }
-    if header.kind != B::KIND {
-        return Err(DecodeError::WrongKind {
-            expected: B::KIND,
-            found: header.kind,
-        });
-    }
-    message.body.validate()?;
     Ok(message)
 }
 

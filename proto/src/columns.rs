@@ -47,7 +47,8 @@ pub fn f32_le_bytes(values: &[f32]) -> Cow<'_, [u8]> {
     }
 }
 
-fn f32_from_le_bytes(bytes: &[u8]) -> Option<Vec<f32>> {
+/// The values of little-endian f32 bytes (`None` unless the length is a multiple of 4).
+pub(crate) fn f32_from_le_bytes(bytes: &[u8]) -> Option<Vec<f32>> {
     if !bytes.len().is_multiple_of(4) {
         return None;
     }
@@ -106,19 +107,44 @@ impl<'de> Visitor<'de> for F32Visitor {
 
 /// Checks that every value is finite.
 pub(crate) fn check_finite(field: &'static str, values: &[f32]) -> Result<(), ValidationError> {
-    // Branch-free on the bits (exponent all ones = NaN or infinity) so the common, all-finite
-    // case vectorises; locate the culprit only when there is one.
+    if all_finite(values) {
+        return Ok(());
+    }
+    // Locate the culprit only when there is one.
+    let index = values.iter().position(|v| !v.is_finite()).unwrap_or(0);
+    Err(ValidationError::NonFinite { field, index })
+}
+
+/// Whether no value is NaN or infinite. Every message's float columns go through this on encode
+/// and on decode, so it runs on AVX2 where the CPU has it (twice the lanes of the SSE2 baseline
+/// the crate is compiled for).
+fn all_finite(values: &[f32]) -> bool {
+    #[cfg(target_arch = "x86_64")]
+    {
+        if std::arch::is_x86_feature_detected!("avx2") {
+            // SAFETY: the CPU supports AVX2, checked just above; the function has no other
+            // precondition.
+            return unsafe { all_finite_avx2(values) };
+        }
+    }
+    all_finite_portable(values)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn all_finite_avx2(values: &[f32]) -> bool {
+    all_finite_portable(values)
+}
+
+/// Branch-free on the bits (exponent all ones = NaN or infinity), so that it vectorises.
+#[inline(always)]
+fn all_finite_portable(values: &[f32]) -> bool {
     const EXP: u32 = 0x7f80_0000;
-    let all_finite = values.chunks(256).all(|c| {
+    values.chunks(256).all(|c| {
         c.iter()
             .fold(0u32, |bad, v| bad | u32::from(v.to_bits() & EXP == EXP))
             == 0
-    });
-    if all_finite {
-        return Ok(());
-    }
-    let index = values.iter().position(|v| !v.is_finite()).unwrap_or(0);
-    Err(ValidationError::NonFinite { field, index })
+    })
 }
 
 /// Checks that a scalar is finite.
@@ -201,4 +227,35 @@ pub(crate) fn check_name(
         )));
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn finiteness_check_finds_every_non_finite_value() {
+        for len in [0usize, 1, 7, 8, 9, 31, 255, 256, 257, 600] {
+            let clean: Vec<f32> = (0..len).map(|i| i as f32 * -1.5e30).collect();
+            assert!(all_finite(&clean) && all_finite_portable(&clean), "{len}");
+            assert_eq!(check_finite("x", &clean), Ok(()));
+            for bad in [f32::NAN, f32::INFINITY, f32::NEG_INFINITY, -f32::NAN] {
+                for at in 0..len {
+                    let mut v = clean.clone();
+                    v[at] = bad;
+                    assert!(!all_finite(&v) && !all_finite_portable(&v), "{len} {at}");
+                    assert_eq!(
+                        check_finite("x", &v),
+                        Err(ValidationError::NonFinite {
+                            field: "x",
+                            index: at
+                        })
+                    );
+                }
+            }
+        }
+        // The largest finite values and subnormals are finite.
+        let edge = [f32::MAX, f32::MIN, f32::MIN_POSITIVE / 2.0, -0.0];
+        assert!(all_finite(&edge) && all_finite_portable(&edge));
+    }
 }

@@ -1,6 +1,7 @@
 //! The envelope every message travels in: a [`Header`] and a typed [`Body`].
 
 use std::fmt;
+use std::mem::MaybeUninit;
 
 use serde::de::DeserializeOwned;
 use serde::{Deserialize, Serialize};
@@ -92,6 +93,34 @@ pub trait Body: Serialize + DeserializeOwned + Clone + fmt::Debug + Send + Sync 
     /// Checks every invariant (dimensions, finiteness, limits, checksums). Called by
     /// [`crate::encode`] and [`crate::decode`].
     fn validate(&self) -> Result<(), ValidationError>;
+
+    /// Encodes `header` + `body` without serde into `buf` (cleared, valid message) and returns
+    /// `true`, where a hand-written codec exists ([`crate::direct`]); it writes exactly the bytes
+    /// of the serde encoding. `false`: serde encodes.
+    #[doc(hidden)]
+    fn encode_direct(_header: &Header, _body: &Self, _buf: &mut Vec<u8>) -> bool {
+        false
+    }
+
+    /// The exact length [`Body::encode_direct`] would write, where a hand-written codec exists.
+    #[doc(hidden)]
+    fn direct_len(_header: &Header, _body: &Self) -> Option<usize> {
+        None
+    }
+
+    /// Writes what [`Body::encode_direct`] would into `out` from its start; `true` only if
+    /// that filled `out` exactly (every byte initialised, nothing left over or cut off).
+    #[doc(hidden)]
+    fn direct_write(_header: &Header, _body: &Self, _out: &mut [MaybeUninit<u8>]) -> bool {
+        false
+    }
+
+    /// Decodes a message laid out exactly as [`Body::encode_direct`] writes it (structure only;
+    /// the codec checks version, kind and validity afterwards). `None`: serde decodes.
+    #[doc(hidden)]
+    fn decode_direct(_bytes: &[u8]) -> Option<Message<Self>> {
+        None
+    }
 }
 
 /// A header and a body: what is encoded, published and received.

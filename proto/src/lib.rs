@@ -51,6 +51,7 @@
 pub mod codec;
 pub mod columns;
 pub mod control;
+mod direct;
 pub mod error;
 pub mod fixtures;
 pub mod header;
@@ -61,8 +62,8 @@ pub mod transitions;
 pub mod weights;
 
 pub use codec::{
-    decode, decode_with_limit, encode, encode_into, encode_message, probe_protocol_version,
-    DEFAULT_MAX_MESSAGE_BYTES,
+    decode, decode_with_limit, encode, encode_into, encode_message, prepare,
+    probe_protocol_version, Prepared, DEFAULT_MAX_MESSAGE_BYTES,
 };
 pub use control::{Ack, Control, CreditGrant, RunPhase};
 pub use error::{DecodeError, EncodeError, ValidationError};

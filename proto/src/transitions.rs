@@ -1,10 +1,12 @@
 //! [`TransitionBatch`]: one finished episode, or a chunk of one, in a columnar layout.
 
+use std::mem::MaybeUninit;
+
 use serde::{Deserialize, Serialize};
 
 use crate::columns::{check_finite, check_len, check_max, check_name, f32_le};
 use crate::error::ValidationError;
-use crate::header::{Body, MessageKind};
+use crate::header::{Body, Header, Message, MessageKind};
 
 /// Most humans a batch may describe.
 pub const MAX_HUMANS: u32 = 256;
@@ -261,6 +263,28 @@ impl TransitionBatch {
 
 impl Body for TransitionBatch {
     const KIND: MessageKind = MessageKind::TransitionBatch;
+
+    fn encode_direct(header: &Header, body: &Self, buf: &mut Vec<u8>) -> bool {
+        buf.reserve(body.approx_encoded_len());
+        crate::direct::encode_batch(header, body, buf);
+        true
+    }
+
+    fn direct_len(header: &Header, body: &Self) -> Option<usize> {
+        let mut n = crate::direct::Counter(0);
+        crate::direct::encode_batch(header, body, &mut n);
+        Some(n.0)
+    }
+
+    fn direct_write(header: &Header, body: &Self, out: &mut [MaybeUninit<u8>]) -> bool {
+        let mut w = crate::direct::Uninit::new(out);
+        crate::direct::encode_batch(header, body, &mut w);
+        w.filled()
+    }
+
+    fn decode_direct(bytes: &[u8]) -> Option<Message<Self>> {
+        crate::direct::decode_batch(bytes)
+    }
 
     fn validate(&self) -> Result<(), ValidationError> {
         check_name("setting", &self.setting, MAX_SETTING_LEN)?;

@@ -9,6 +9,7 @@
 //! current value at once (iceoryx2 delivers history only from the publisher side).
 
 use std::fmt;
+use std::mem::MaybeUninit;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::thread::JoinHandle;
@@ -22,14 +23,19 @@ use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::port::update_connections::UpdateConnections;
 use iceoryx2::port::{BackpressureAction, BackpressureInfo, LoanError, SendError};
 use iceoryx2::prelude::*;
+use iceoryx2::sample_mut::SampleMut;
+use iceoryx2::sample_mut_uninit::SampleMutUninit;
 use iceoryx2::service::port_factory::{event, publish_subscribe};
-use proto::{Delivery, Fanout, RunId, SenderId};
+use proto::{Body, Delivery, Fanout, Prepared, RunId, SenderId};
 
 use crate::config::IceoryxConfig;
 use crate::error::{iox_err, TransportError};
 
 /// Longest single block on a listener (see [`IoxSubscriber::wait`]).
 const MAX_WAIT_SLICE: Duration = Duration::from_millis(10);
+
+/// How long a stream subscriber polls before it blocks (see [`IoxSubscriber::recv_until`]).
+const SPIN_BEFORE_WAIT: Duration = Duration::from_micros(50);
 
 /// Thread-safe ports (Send + Sync), so handles can move between threads.
 type Svc = ipc_threadsafe::Service;
@@ -314,23 +320,43 @@ pub(crate) struct IoxPublisher {
 impl IoxPublisher {
     /// Copies `bytes` into a shared-memory sample, sends it and wakes the subscribers.
     pub(crate) fn send(&self, bytes: &[u8]) -> Result<usize, TransportError> {
-        let mut sample = self
-            .publisher
-            .loan_slice_uninit(bytes.len())
-            .map_err(|e| match e {
-                LoanError::ExceedsMaxLoanSize => TransportError::Iceoryx {
-                    op: "loan sample",
-                    detail: format!(
-                        "{} bytes exceed the fixed sample size of {} (raise \
-                         iceoryx2.latest_sample_bytes)",
-                        bytes.len(),
-                        self.publisher.initial_max_slice_len()
-                    ),
-                },
-                other => iox_err("loan sample")(other),
-            })?;
+        let sample = self.loan(bytes.len())?;
+        self.deliver(sample.write_from_slice(bytes))
+    }
+
+    /// Encodes `message` straight into a shared-memory sample of its exact size (no encode
+    /// buffer, no copy), sends it and wakes the subscribers.
+    pub(crate) fn send_prepared<B: Body>(
+        &self,
+        message: &Prepared<'_, B>,
+    ) -> Result<usize, TransportError> {
+        let mut sample = self.loan(message.encoded_len())?;
+        message.write(sample.payload_mut())?;
+        // SAFETY: `write` succeeded, which means it initialised every byte of the payload.
+        let sample = unsafe { sample.assume_init() };
+        self.deliver(sample)
+    }
+
+    fn loan(
+        &self,
+        len: usize,
+    ) -> Result<SampleMutUninit<Svc, [MaybeUninit<u8>], u64>, TransportError> {
+        let mut sample = self.publisher.loan_slice_uninit(len).map_err(|e| match e {
+            LoanError::ExceedsMaxLoanSize => TransportError::Iceoryx {
+                op: "loan sample",
+                detail: format!(
+                    "{len} bytes exceed the fixed sample size of {} (raise \
+                     iceoryx2.latest_sample_bytes)",
+                    self.publisher.initial_max_slice_len()
+                ),
+            },
+            other => iox_err("loan sample")(other),
+        })?;
         *sample.user_header_mut() = self.key_hash;
-        let sample = sample.write_from_slice(bytes);
+        Ok(sample)
+    }
+
+    fn deliver(&self, sample: SampleMut<Svc, [u8], u64>) -> Result<usize, TransportError> {
         let delivered = sample.send().map_err(|e| match e {
             // Our backpressure handler gave up after the publish timeout.
             SendError::UnableToDeliver => TransportError::PublishTimeout {
@@ -461,11 +487,17 @@ impl IoxSubscriber {
     }
 
     /// Repeats `try_take` until `f` accepts a sample (returns `Some`) or the deadline passes.
+    ///
+    /// Polls for up to [`SPIN_BEFORE_WAIT`] (yielding the CPU between polls) before it blocks
+    /// on the listener: the next sample of a stream usually follows within microseconds, and
+    /// while the subscriber does not block, the publishers' notifications stay pending in
+    /// iceoryx2, so a send costs no system call and the receive no wake-up.
     pub(crate) fn recv_until<T>(
         &self,
         deadline: Instant,
         mut f: impl FnMut(&[u8], &dyn fmt::Display) -> Option<T>,
     ) -> Result<Option<T>, TransportError> {
+        let mut spin_end = None;
         loop {
             while let Some(r) = self.try_take(&mut f)? {
                 if r.is_some() {
@@ -475,6 +507,10 @@ impl IoxSubscriber {
             let now = Instant::now();
             if now >= deadline {
                 return Ok(None);
+            }
+            if now < *spin_end.get_or_insert(now + SPIN_BEFORE_WAIT) {
+                std::thread::yield_now();
+                continue;
             }
             self.wait(deadline - now)?;
         }

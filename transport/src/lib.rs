@@ -390,21 +390,22 @@ impl Stamp {
         )
     }
 
-    /// Encodes into the reused scratch buffer and hands the bytes to `send`.
-    fn with_encoded<M: Body, R>(
+    /// Encodes and sends over iceoryx2: straight into the shared-memory sample where the
+    /// message has a hand-written codec (episode batches), else into the reused scratch buffer,
+    /// which is then copied into the sample.
+    fn send_iox<M: Body>(
         &self,
         header: &proto::Header,
         body: &M,
-        send: impl FnOnce(&[u8]) -> Result<R, TransportError>,
-    ) -> Result<R, TransportError> {
+        publisher: &IoxPublisher,
+    ) -> Result<usize, TransportError> {
+        let limit = self.transport.inner.config.max_message_bytes;
+        if let Some(prepared) = proto::prepare(header, body, limit)? {
+            return publisher.send_prepared(&prepared);
+        }
         let mut buf = lock(&self.scratch);
-        proto::encode_into(
-            header,
-            body,
-            &mut buf,
-            self.transport.inner.config.max_message_bytes,
-        )?;
-        send(&buf)
+        proto::encode_into(header, body, &mut buf, limit)?;
+        publisher.send(&buf)
     }
 
     fn encode_header<M: Body>(
@@ -455,9 +456,7 @@ impl<M: Body> Publisher<M> {
     fn send_encoded(&self, header: &proto::Header, body: &M) -> Result<(), TransportError> {
         match &self.backend {
             PubBackend::Zenoh(p) => zenoh_impl::put(p, self.stamp.encode_header(header, body)?),
-            PubBackend::Iox(p) => self
-                .stamp
-                .with_encoded(header, body, |bytes| p.send(bytes).map(|_| ())),
+            PubBackend::Iox(p) => self.stamp.send_iox(header, body, p).map(|_| ()),
         }
     }
 
@@ -627,8 +626,7 @@ impl<M: Body> LatestPublisher<M> {
         match &self.backend {
             LatestPubBackend::Zenoh(p) => p.put(self.stamp.encode_header(&header, body)?)?,
             LatestPubBackend::Iox(p) => {
-                self.stamp
-                    .with_encoded(&header, body, |bytes| p.send(bytes))?;
+                self.stamp.send_iox(&header, body, p)?;
             }
         }
         Ok(header.seq)
