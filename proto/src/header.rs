@@ -95,7 +95,7 @@ pub trait Body: Serialize + DeserializeOwned + Clone + fmt::Debug + Send + Sync 
     fn validate(&self) -> Result<(), ValidationError>;
 
     /// Encodes `header` + `body` without serde into `buf` (cleared, valid message) and returns
-    /// `true`, where a hand-written codec exists ([`crate::direct`]); it writes exactly the bytes
+    /// `true`, where a hand-written codec exists (module `direct`); it writes exactly the bytes
     /// of the serde encoding. `false`: serde encodes.
     #[doc(hidden)]
     fn encode_direct(_header: &Header, _body: &Self, _buf: &mut Vec<u8>) -> bool {

@@ -23,7 +23,8 @@
 //! float columns are little-endian `bin`s (`numpy.frombuffer(b, "<f4")`). Encoding validates the
 //! body; decoding enforces a size limit, the protocol version and message kind, rejects trailing
 //! bytes and validates dimensions, finiteness, limits and checksums. Every malformed input is a
-//! typed [`DecodeError`]; decoding never panics.
+//! typed [`DecodeError`]; decoding never panics. Episode batches take a hand-written path with
+//! the same bytes (see [`codec`]), and [`prepare`] encodes one straight into caller memory.
 //!
 //! # Topics
 //!

@@ -3,7 +3,9 @@
 //! Every topic maps to one publish-subscribe service of `[u8]` samples with a `u64` user header
 //! (FNV-1a hash of the concrete key expression, so a concrete subscriber of a many-to-one
 //! family skips other keys), plus an event service of the same name that publishers notify
-//! after each send (subscribers block on it instead of polling). Latest-value services keep a
+//! after each send (stream subscribers poll briefly, then block on it; iceoryx2 makes a notify
+//! that finds one still pending free, so a busy stream costs no system call). Latest-value
+//! services keep a
 //! history of one sample; a new subscriber notifies `<service>/join`, and a thread of the
 //! latest-value publisher then calls `update_connections`, which hands the subscriber the
 //! current value at once (iceoryx2 delivers history only from the publisher side).

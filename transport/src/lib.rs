@@ -10,7 +10,7 @@
 //!
 //! | | zenoh ([`DataPlane::Zenoh`], default) | iceoryx2 ([`DataPlane::Iceoryx2`]) |
 //! |---|---|---|
-//! | data topics | zenoh pub/sub | iceoryx2 `[u8]` pub/sub in shared memory (one copy in, zero-copy out) |
+//! | data topics | zenoh pub/sub | iceoryx2 `[u8]` pub/sub in shared memory (episode batches encoded straight into the sample, others copied in once; read in place) |
 //! | telemetry topics (metrics, status, eval) | zenoh | zenoh (loopback) |
 //! | liveliness | zenoh liveliness tokens | zenoh liveliness tokens |
 //! | latest value (late joiner) | queryable serving the last value + query at subscribe | service history of 1 + join event → `update_connections` |
@@ -364,8 +364,8 @@ struct Stamp {
     transport: Transport,
     seq: AtomicU64,
     last_len: AtomicUsize,
-    /// Encode buffer reused by the iceoryx2 path, which copies the bytes into shared memory
-    /// (zenoh takes ownership of a fresh buffer instead).
+    /// Encode buffer reused by the iceoryx2 path for messages without a hand-written codec,
+    /// which it copies into shared memory (zenoh takes ownership of a fresh buffer instead).
     scratch: Mutex<Vec<u8>>,
 }
 
