@@ -77,6 +77,7 @@ fn name(plane: DataPlane) -> &'static str {
 
 /// An actor's transitions publisher and the learner's subscriber on one backend.
 struct Pipe {
+    plane: DataPlane,
     batch: TransitionBatch,
     bytes: Vec<u8>,
     sub: Subscriber<TransitionBatch>,
@@ -97,6 +98,7 @@ impl Pipe {
             .expect("publisher");
         assert!(publisher.wait_for_subscribers(WAIT).expect("matching"));
         Self {
+            plane,
             batch: batch.clone(),
             bytes: bytes.to_vec(),
             sub,
@@ -111,20 +113,23 @@ impl Pipe {
         std::thread::scope(|s| {
             let start = Arc::new(Barrier::new(2));
             let start2 = Arc::clone(&start);
-            let sub = &self.sub;
+            let (sub, plane) = (&self.sub, self.plane);
             let receiver = s.spawn(move || {
                 start2.wait();
-                for _ in 0..n {
-                    if typed {
-                        let m = sub.recv_timeout(WAIT).expect("recv").expect("batch");
-                        black_box(m);
-                    } else {
-                        let len = sub
-                            .recv_bytes_timeout(WAIT, |b| b.len())
+                for i in 0..n {
+                    let got = if typed {
+                        sub.recv_timeout(WAIT)
                             .expect("recv")
-                            .expect("batch");
-                        black_box(len);
-                    }
+                            .map(|m| black_box(m).header.seq as usize)
+                    } else {
+                        sub.recv_bytes_timeout(WAIT, |b| black_box(b.len()))
+                            .expect("recv")
+                    };
+                    assert!(
+                        got.is_some(),
+                        "{}: batch {i} of {n} (typed: {typed}) not received within {WAIT:?}",
+                        name(plane)
+                    );
                 }
                 Instant::now()
             });

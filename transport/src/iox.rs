@@ -25,7 +25,6 @@ use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::port::update_connections::UpdateConnections;
 use iceoryx2::port::{BackpressureAction, BackpressureInfo, LoanError, SendError};
 use iceoryx2::prelude::*;
-use iceoryx2::sample_mut::SampleMut;
 use iceoryx2::sample_mut_uninit::SampleMutUninit;
 use iceoryx2::service::port_factory::{event, publish_subscribe};
 use proto::{Body, Delivery, Fanout, Prepared, RunId, SenderId};
@@ -203,6 +202,9 @@ impl IoxNode {
                 .create()
                 .map_err(iox_err("create notifier"))?,
         );
+        // Wake the subscribers, so that they open their side of the connection to this new
+        // publisher now rather than at their next receive (see `IoxPublisher::send_with`).
+        notifier.notify().map_err(iox_err("notify"))?;
         let joiner = match delivery {
             Delivery::Latest => Some(JoinWatcher::start(
                 self.events(&join_service(service))?,
@@ -216,7 +218,8 @@ impl IoxNode {
             notifier,
             key_hash: key_hash(key),
             key: key.to_string(),
-            timeout_ms: self.publish_timeout.as_millis() as u64,
+            reliable: delivery == Delivery::Reliable,
+            timeout: self.publish_timeout,
             joiner,
             factory,
             _events: events,
@@ -313,7 +316,8 @@ pub(crate) struct IoxPublisher {
     notifier: Arc<Notifier<Svc>>,
     key_hash: u64,
     key: String,
-    timeout_ms: u64,
+    reliable: bool,
+    timeout: Duration,
     joiner: Option<JoinWatcher>,
     factory: publish_subscribe::PortFactory<Svc, [u8], u64>,
     _events: event::PortFactory<Svc>,
@@ -322,8 +326,24 @@ pub(crate) struct IoxPublisher {
 impl IoxPublisher {
     /// Copies `bytes` into a shared-memory sample, sends it and wakes the subscribers.
     pub(crate) fn send(&self, bytes: &[u8]) -> Result<usize, TransportError> {
-        let sample = self.loan(bytes.len())?;
-        self.deliver(sample.write_from_slice(bytes))
+        self.send_with(bytes.len(), |out| {
+            if out.len() != bytes.len() {
+                return Err(TransportError::Iceoryx {
+                    op: "loan sample",
+                    detail: format!("{} bytes loaned for {}", out.len(), bytes.len()),
+                });
+            }
+            // SAFETY: `out` and `bytes` have the same length (checked above), `MaybeUninit<u8>`
+            // has the layout of `u8`, and the loaned sample cannot overlap the caller's bytes.
+            unsafe {
+                std::ptr::copy_nonoverlapping(
+                    bytes.as_ptr(),
+                    out.as_mut_ptr().cast::<u8>(),
+                    bytes.len(),
+                );
+            }
+            Ok(())
+        })
     }
 
     /// Encodes `message` straight into a shared-memory sample of its exact size (no encode
@@ -332,11 +352,61 @@ impl IoxPublisher {
         &self,
         message: &Prepared<'_, B>,
     ) -> Result<usize, TransportError> {
-        let mut sample = self.loan(message.encoded_len())?;
-        message.write(sample.payload_mut())?;
-        // SAFETY: `write` succeeded, which means it initialised every byte of the payload.
-        let sample = unsafe { sample.assume_init() };
-        self.deliver(sample)
+        self.send_with(message.encoded_len(), |out| {
+            message.write(out)?;
+            Ok(())
+        })
+    }
+
+    /// Loans a sample of `len` bytes, lets `fill` write every byte of it (or fail, and the
+    /// sample is returned unsent), sends it and wakes the subscribers; returns how many
+    /// received it.
+    ///
+    /// iceoryx2 delivers a sample to a subscriber whose side of the connection to this
+    /// publisher is not open yet (a subscriber opens it at its next receive) only while that
+    /// connection's queue has room, and drops it silently once the queue is full. On a
+    /// reliable topic a sample that reached nobody while subscribers exist is therefore sent
+    /// again, with the same back-off and time limit as a full queue.
+    fn send_with(
+        &self,
+        len: usize,
+        mut fill: impl FnMut(&mut [MaybeUninit<u8>]) -> Result<(), TransportError>,
+    ) -> Result<usize, TransportError> {
+        let start = Instant::now();
+        let mut retries = 0u64;
+        loop {
+            let mut sample = self.loan(len)?;
+            fill(sample.payload_mut())?;
+            // SAFETY: `fill` returned Ok, which for both callers means it wrote every byte of
+            // the payload (`send` copies exactly `len` bytes; `Prepared::write` succeeds only
+            // when it filled the destination exactly).
+            let sample = unsafe { sample.assume_init() };
+            let delivered = sample.send().map_err(|e| match e {
+                // Our backpressure handler gave up after the publish timeout.
+                SendError::UnableToDeliver => self.timed_out(),
+                other => iox_err("send")(other),
+            })?;
+            self.notifier.notify().map_err(iox_err("notify"))?;
+            if delivered > 0 || !self.reliable || self.subscriber_count() == 0 {
+                return Ok(delivered);
+            }
+            if start.elapsed() >= self.timeout {
+                return Err(self.timed_out());
+            }
+            retries += 1;
+            if retries > 64 {
+                std::thread::sleep(Duration::from_micros(50));
+            } else {
+                std::thread::yield_now();
+            }
+        }
+    }
+
+    fn timed_out(&self) -> TransportError {
+        TransportError::PublishTimeout {
+            topic: self.key.clone(),
+            timeout_ms: self.timeout.as_millis() as u64,
+        }
     }
 
     fn loan(
@@ -356,19 +426,6 @@ impl IoxPublisher {
         })?;
         *sample.user_header_mut() = self.key_hash;
         Ok(sample)
-    }
-
-    fn deliver(&self, sample: SampleMut<Svc, [u8], u64>) -> Result<usize, TransportError> {
-        let delivered = sample.send().map_err(|e| match e {
-            // Our backpressure handler gave up after the publish timeout.
-            SendError::UnableToDeliver => TransportError::PublishTimeout {
-                topic: self.key.clone(),
-                timeout_ms: self.timeout_ms,
-            },
-            other => iox_err("send")(other),
-        })?;
-        self.notifier.notify().map_err(iox_err("notify"))?;
-        Ok(delivered)
     }
 }
 

@@ -16,6 +16,7 @@ use crate::harness::{Backend, Net, WAIT};
 both_backends!(
     transitions_many_to_one,
     reliable_under_backpressure,
+    reliable_to_a_subscriber_that_starts_reading_late,
     latest_value_for_late_joiner,
     latest_value_before_publisher,
     acks_reach_only_their_actor,
@@ -106,6 +107,51 @@ fn reliable_under_backpressure(b: Backend) {
             assert_eq!(m.header.seq, i, "lost or reordered");
         }
     });
+}
+
+/// A publisher newer than the subscriber fills the subscriber's queue before the subscriber has
+/// ever read (with iceoryx2, before the subscriber has opened its side of the connection):
+/// the rest waits for room instead of being dropped.
+fn reliable_to_a_subscriber_that_starts_reading_late(b: Backend) {
+    const BUF: usize = 4;
+    const N: u64 = 200;
+    let mut net = Net::new(b);
+    let mut cfg = net.config(SenderId::learner());
+    cfg.subscriber_queue = BUF;
+    cfg.iceoryx2.subscriber_buffer = BUF;
+    let learner = net.open_with(cfg);
+    let sub = learner
+        .subscriber(&keys::all_transitions(&net.run))
+        .expect("subscriber");
+    let mut cfg = net.config(SenderId::actor(0));
+    cfg.iceoryx2.subscriber_buffer = BUF;
+    let actor = net.open_with(cfg);
+    let p = actor
+        .publisher(&keys::transitions(&net.run, 0))
+        .expect("publisher");
+    assert!(p.wait_for_subscribers(WAIT).expect("matching"));
+    let small = fixtures::episode(2, 1, 0);
+    let (queue_full, done) = (std::sync::mpsc::channel(), std::sync::mpsc::channel());
+    std::thread::scope(|s| {
+        s.spawn(|| {
+            for i in 0..N {
+                if i == BUF as u64 {
+                    queue_full.0.send(()).expect("signal");
+                }
+                p.publish(0, &small).expect("publish never fails or drops");
+            }
+            let _ = done.0.send(());
+        });
+        // Start reading only when the queue is full and the publisher has either finished
+        // (it would have dropped the rest) or has been waiting for room for a while.
+        queue_full.1.recv_timeout(WAIT).expect("queue filled");
+        let _ = done.1.recv_timeout(Duration::from_millis(300));
+        for i in 0..N {
+            let m = sub.recv_timeout(WAIT).expect("recv").expect("in time");
+            assert_eq!(m.header.seq, i, "lost or reordered");
+        }
+    });
+    assert_eq!(sub.try_recv().expect("try_recv"), None);
 }
 
 fn latest_value_for_late_joiner(b: Backend) {
