@@ -17,6 +17,7 @@ use std::mem::MaybeUninit;
 use serde::de::IgnoredAny;
 use serde::{Deserialize, Serialize};
 
+use crate::direct::Reader;
 use crate::error::{DecodeError, EncodeError, ValidationError};
 use crate::header::{Body, Header, Message, MessageRef};
 use crate::PROTOCOL_VERSION;
@@ -219,22 +220,13 @@ fn serde_decode<B: Body>(bytes: &[u8]) -> Result<Message<B>, DecodeError> {
 /// Reads only the protocol version of an encoded message, if it can be found. Cheap; never
 /// panics. Useful for logging rejected messages.
 pub fn probe_protocol_version(bytes: &[u8]) -> Option<u16> {
-    let mut r = Reader { buf: bytes, pos: 0 };
-    let header = r.field(0, "header")?;
-    let mut h = Reader {
-        buf: header,
-        pos: 0,
-    };
-    let version = h.field(0, "protocol_version")?;
-    let mut v = Reader {
-        buf: version,
-        pos: 0,
-    };
-    u16::try_from(v.uint()?).ok()
+    let header = Reader::new(bytes).field(0, "header")?;
+    let version = Reader::new(header).field(0, "protocol_version")?;
+    u16::try_from(Reader::new(version).uint()?).ok()
 }
 
 /// Nesting depth accepted when decoding (our messages nest at most 4 levels).
-const MAX_DEPTH: usize = 32;
+pub(crate) const MAX_DEPTH: usize = 32;
 
 fn map_rmp_error(e: rmp_serde::decode::Error) -> DecodeError {
     use rmp_serde::decode::Error as E;
@@ -250,135 +242,9 @@ fn map_rmp_error(e: rmp_serde::decode::Error) -> DecodeError {
 }
 
 fn consumed_len(bytes: &[u8]) -> Option<usize> {
-    let mut r = Reader { buf: bytes, pos: 0 };
+    let mut r = Reader::new(bytes);
     r.skip(0)?;
-    Some(r.pos)
-}
-
-/// A minimal bounds-checked MessagePack reader, only for probing.
-struct Reader<'a> {
-    buf: &'a [u8],
-    pos: usize,
-}
-
-impl<'a> Reader<'a> {
-    fn take(&mut self, n: usize) -> Option<&'a [u8]> {
-        let end = self.pos.checked_add(n)?;
-        let s = self.buf.get(self.pos..end)?;
-        self.pos = end;
-        Some(s)
-    }
-
-    fn byte(&mut self) -> Option<u8> {
-        Some(self.take(1)?[0])
-    }
-
-    fn be(&mut self, n: usize) -> Option<u64> {
-        Some(
-            self.take(n)?
-                .iter()
-                .fold(0u64, |acc, b| (acc << 8) | u64::from(*b)),
-        )
-    }
-
-    fn uint(&mut self) -> Option<u64> {
-        match self.byte()? {
-            m @ 0x00..=0x7f => Some(u64::from(m)),
-            0xcc => self.be(1),
-            0xcd => self.be(2),
-            0xce => self.be(4),
-            0xcf => self.be(8),
-            _ => None,
-        }
-    }
-
-    fn str(&mut self) -> Option<&'a [u8]> {
-        let len = match self.byte()? {
-            m @ 0xa0..=0xbf => u64::from(m & 0x1f),
-            0xd9 => self.be(1)?,
-            0xda => self.be(2)?,
-            0xdb => self.be(4)?,
-            _ => return None,
-        };
-        self.take(usize::try_from(len).ok()?)
-    }
-
-    /// Container header: `(is_map, len)`.
-    fn container(&mut self) -> Option<(bool, u64)> {
-        match self.byte()? {
-            m @ 0x80..=0x8f => Some((true, u64::from(m & 0x0f))),
-            m @ 0x90..=0x9f => Some((false, u64::from(m & 0x0f))),
-            0xdc => Some((false, self.be(2)?)),
-            0xdd => Some((false, self.be(4)?)),
-            0xde => Some((true, self.be(2)?)),
-            0xdf => Some((true, self.be(4)?)),
-            _ => None,
-        }
-    }
-
-    /// The raw bytes of field `name` of a struct encoded as a map, or of element `index` of a
-    /// struct encoded as an array.
-    fn field(&mut self, index: u64, name: &str) -> Option<&'a [u8]> {
-        let (is_map, len) = self.container()?;
-        for i in 0..len {
-            if is_map {
-                let key = self.str()?;
-                let start = self.pos;
-                self.skip(1)?;
-                if key == name.as_bytes() {
-                    return self.buf.get(start..self.pos);
-                }
-            } else {
-                let start = self.pos;
-                self.skip(1)?;
-                if i == index {
-                    return self.buf.get(start..self.pos);
-                }
-            }
-        }
-        None
-    }
-
-    /// Skips one value.
-    fn skip(&mut self, depth: usize) -> Option<()> {
-        if depth > MAX_DEPTH {
-            return None;
-        }
-        let m = self.byte()?;
-        let (items, bytes): (u64, u64) = match m {
-            0x00..=0x7f | 0xe0..=0xff | 0xc0 | 0xc2 | 0xc3 => (0, 0),
-            0x80..=0x8f => (2 * u64::from(m & 0x0f), 0),
-            0x90..=0x9f => (u64::from(m & 0x0f), 0),
-            0xa0..=0xbf => (0, u64::from(m & 0x1f)),
-            0xc4 | 0xd9 => (0, self.be(1)?),
-            0xc5 | 0xda => (0, self.be(2)?),
-            0xc6 | 0xdb => (0, self.be(4)?),
-            0xc7 => (0, self.be(1)? + 1),
-            0xc8 => (0, self.be(2)? + 1),
-            0xc9 => (0, self.be(4)? + 1),
-            0xca => (0, 4),
-            0xcb => (0, 8),
-            0xcc | 0xd0 => (0, 1),
-            0xcd | 0xd1 => (0, 2),
-            0xce | 0xd2 => (0, 4),
-            0xcf | 0xd3 => (0, 8),
-            0xd4 => (0, 2),
-            0xd5 => (0, 3),
-            0xd6 => (0, 5),
-            0xd7 => (0, 9),
-            0xd8 => (0, 17),
-            0xdc => (self.be(2)?, 0),
-            0xdd => (self.be(4)?, 0),
-            0xde => (2 * self.be(2)?, 0),
-            0xdf => (2 * self.be(4)?, 0),
-            0xc1 => return None,
-        };
-        self.take(usize::try_from(bytes).ok()?)?;
-        for _ in 0..items {
-            self.skip(depth + 1)?;
-        }
-        Some(())
-    }
+    Some(r.pos())
 }
 
 #[cfg(test)]

@@ -16,6 +16,7 @@
 
 use std::mem::MaybeUninit;
 
+use crate::codec::MAX_DEPTH;
 use crate::header::{Header, Message, MessageKind};
 use crate::ids::{Role, RunId, SenderId};
 use crate::transitions::{Outcome, TransitionBatch};
@@ -261,14 +262,24 @@ pub(crate) fn encode_batch(header: &Header, b: &TransitionBatch, w: &mut impl Si
 }
 
 // ---------------------------------------------------------------------------------------------
-// Reading: `None` whenever the input is not exactly what `encode_batch` writes.
+// Reading: `None` whenever the input is not exactly what `encode_batch` writes. The reader is
+// bounds-checked throughout; `codec` also uses it to probe messages serde rejected.
 
-struct Reader<'a> {
+pub(crate) struct Reader<'a> {
     buf: &'a [u8],
     pos: usize,
 }
 
 impl<'a> Reader<'a> {
+    pub(crate) fn new(buf: &'a [u8]) -> Self {
+        Self { buf, pos: 0 }
+    }
+
+    /// Bytes read so far.
+    pub(crate) fn pos(&self) -> usize {
+        self.pos
+    }
+
     fn take(&mut self, n: usize) -> Option<&'a [u8]> {
         let end = self.pos.checked_add(n)?;
         let s = self.buf.get(self.pos..end)?;
@@ -344,7 +355,77 @@ impl<'a> Reader<'a> {
         self.take(n)
     }
 
-    fn uint(&mut self) -> Option<u64> {
+    /// A container header: `(is_map, number of entries)`.
+    fn container(&mut self) -> Option<(bool, usize)> {
+        match *self.buf.get(self.pos)? {
+            0x80..=0x8f | 0xde | 0xdf => Some((true, self.map_len()?)),
+            0x90..=0x9f | 0xdc | 0xdd => Some((false, self.array_len()?)),
+            _ => None,
+        }
+    }
+
+    /// The raw bytes of field `name` of a struct encoded as a map, or of element `index` of a
+    /// struct encoded as an array (any field order, any value types).
+    pub(crate) fn field(&mut self, index: usize, name: &str) -> Option<&'a [u8]> {
+        let (is_map, len) = self.container()?;
+        for i in 0..len {
+            let is_it = if is_map {
+                self.str_bytes()? == name.as_bytes()
+            } else {
+                i == index
+            };
+            let start = self.pos;
+            self.skip(1)?;
+            if is_it {
+                return self.buf.get(start..self.pos);
+            }
+        }
+        None
+    }
+
+    /// Skips one value of any type (found at nesting level `depth`; at most
+    /// [`MAX_DEPTH`] levels).
+    pub(crate) fn skip(&mut self, depth: usize) -> Option<()> {
+        if depth > MAX_DEPTH {
+            return None;
+        }
+        let m = self.byte()?;
+        let (items, bytes): (usize, usize) = match m {
+            0x00..=0x7f | 0xe0..=0xff | 0xc0 | 0xc2 | 0xc3 => (0, 0),
+            0x80..=0x8f => (2 * usize::from(m & 0x0f), 0),
+            0x90..=0x9f => (usize::from(m & 0x0f), 0),
+            0xa0..=0xbf => (0, usize::from(m & 0x1f)),
+            0xc4 | 0xd9 => (0, self.be_len(1)?),
+            0xc5 | 0xda => (0, self.be_len(2)?),
+            0xc6 | 0xdb => (0, self.be_len(4)?),
+            0xc7 => (0, self.be_len(1)?.checked_add(1)?),
+            0xc8 => (0, self.be_len(2)?.checked_add(1)?),
+            0xc9 => (0, self.be_len(4)?.checked_add(1)?),
+            0xca => (0, 4),
+            0xcb => (0, 8),
+            0xcc | 0xd0 => (0, 1),
+            0xcd | 0xd1 => (0, 2),
+            0xce | 0xd2 => (0, 4),
+            0xcf | 0xd3 => (0, 8),
+            0xd4 => (0, 2),
+            0xd5 => (0, 3),
+            0xd6 => (0, 5),
+            0xd7 => (0, 9),
+            0xd8 => (0, 17),
+            0xdc => (self.be_len(2)?, 0),
+            0xdd => (self.be_len(4)?, 0),
+            0xde => (self.be_len(2)?.checked_mul(2)?, 0),
+            0xdf => (self.be_len(4)?.checked_mul(2)?, 0),
+            0xc1 => return None,
+        };
+        self.take(bytes)?;
+        for _ in 0..items {
+            self.skip(depth + 1)?;
+        }
+        Some(())
+    }
+
+    pub(crate) fn uint(&mut self) -> Option<u64> {
         Some(match self.byte()? {
             m @ 0x00..=0x7f => u64::from(m),
             0xcc => u64::from(self.byte()?),
@@ -491,7 +572,7 @@ impl<'a> Reader<'a> {
 /// `None` for anything else (the caller then decodes with serde). Checks structure only: the
 /// caller checks the protocol version, kind and body exactly as for a serde-decoded message.
 pub(crate) fn decode_batch(bytes: &[u8]) -> Option<Message<TransitionBatch>> {
-    let mut r = Reader { buf: bytes, pos: 0 };
+    let mut r = Reader::new(bytes);
     (r.map_len()? == 2).then_some(())?;
     r.key("header")?;
     let header = r.header()?;
