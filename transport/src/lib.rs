@@ -14,7 +14,7 @@
 //! | telemetry topics (metrics, status, eval) | zenoh | zenoh (loopback) |
 //! | liveliness | zenoh liveliness tokens | zenoh liveliness tokens |
 //! | latest value (late joiner) | queryable serving the last value + query at subscribe | service history of 1 + join event → `update_connections` |
-//! | reliable | `CongestionControl::Block`, reliable links | no overflow, `RetryUntilDelivered` up to `publish_timeout_ms`, then [`TransportError::PublishTimeout`] |
+//! | reliable | `CongestionControl::Block`, reliable links | no overflow, `RetryUntilDelivered` up to `publish_timeout_ms`, then [`TransportError::PublishTimeout`]; a sample that reached no subscriber while one exists (not yet connected) is sent again within the same limit |
 //! | best effort | `CongestionControl::Drop`, express | overflow (oldest dropped) |
 //!
 //! Liveliness and telemetry always ride on zenoh, even with the iceoryx2 data plane, so that
