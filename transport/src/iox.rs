@@ -25,6 +25,7 @@ use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::port::update_connections::UpdateConnections;
 use iceoryx2::port::{BackpressureAction, BackpressureInfo, LoanError, SendError};
 use iceoryx2::prelude::*;
+use iceoryx2::sample_mut::SampleMut;
 use iceoryx2::sample_mut_uninit::SampleMutUninit;
 use iceoryx2::service::port_factory::{event, publish_subscribe};
 use proto::{Body, Delivery, Fanout, Prepared, RunId, SenderId};
@@ -301,14 +302,22 @@ fn backpressure(info: &BackpressureInfo, timeout: Duration) -> BackpressureActio
     if info.elapsed_time >= timeout {
         return BackpressureAction::DiscardDataAndFail;
     }
-    // Spin briefly, then yield the CPU while the receiver drains.
-    if info.retries > 64 {
+    back_off(info.retries);
+    BackpressureAction::Retry
+}
+
+/// Waits before the next attempt to deliver: yields the CPU for the first tries, then sleeps
+/// briefly while the receiver drains or connects.
+fn back_off(retries: u64) {
+    if retries > 64 {
         std::thread::sleep(Duration::from_micros(50));
     } else {
         std::thread::yield_now();
     }
-    BackpressureAction::Retry
 }
+
+/// A loaned, not yet written sample of a publisher.
+type Loaned = SampleMutUninit<Svc, [MaybeUninit<u8>], u64>;
 
 /// Publisher side of one topic.
 pub(crate) struct IoxPublisher {
@@ -326,24 +335,7 @@ pub(crate) struct IoxPublisher {
 impl IoxPublisher {
     /// Copies `bytes` into a shared-memory sample, sends it and wakes the subscribers.
     pub(crate) fn send(&self, bytes: &[u8]) -> Result<usize, TransportError> {
-        self.send_with(bytes.len(), |out| {
-            if out.len() != bytes.len() {
-                return Err(TransportError::Iceoryx {
-                    op: "loan sample",
-                    detail: format!("{} bytes loaned for {}", out.len(), bytes.len()),
-                });
-            }
-            // SAFETY: `out` and `bytes` have the same length (checked above), `MaybeUninit<u8>`
-            // has the layout of `u8`, and the loaned sample cannot overlap the caller's bytes.
-            unsafe {
-                std::ptr::copy_nonoverlapping(
-                    bytes.as_ptr(),
-                    out.as_mut_ptr().cast::<u8>(),
-                    bytes.len(),
-                );
-            }
-            Ok(())
-        })
+        self.send_with(bytes.len(), |sample| Ok(sample.write_from_slice(bytes)))
     }
 
     /// Encodes `message` straight into a shared-memory sample of its exact size (no encode
@@ -352,15 +344,15 @@ impl IoxPublisher {
         &self,
         message: &Prepared<'_, B>,
     ) -> Result<usize, TransportError> {
-        self.send_with(message.encoded_len(), |out| {
-            message.write(out)?;
-            Ok(())
+        self.send_with(message.encoded_len(), |mut sample| {
+            message.write(sample.payload_mut())?;
+            // SAFETY: `write` succeeded, which means it initialised every byte of the payload.
+            Ok(unsafe { sample.assume_init() })
         })
     }
 
-    /// Loans a sample of `len` bytes, lets `fill` write every byte of it (or fail, and the
-    /// sample is returned unsent), sends it and wakes the subscribers; returns how many
-    /// received it.
+    /// Loans a sample of `len` bytes, lets `fill` initialise it (or fail, and the sample is
+    /// returned unsent), sends it and wakes the subscribers; returns how many received it.
     ///
     /// iceoryx2 delivers a sample to a subscriber whose side of the connection to this
     /// publisher is not open yet (a subscriber opens it at its next receive) only while that
@@ -370,17 +362,12 @@ impl IoxPublisher {
     fn send_with(
         &self,
         len: usize,
-        mut fill: impl FnMut(&mut [MaybeUninit<u8>]) -> Result<(), TransportError>,
+        mut fill: impl FnMut(Loaned) -> Result<SampleMut<Svc, [u8], u64>, TransportError>,
     ) -> Result<usize, TransportError> {
         let start = Instant::now();
         let mut retries = 0u64;
         loop {
-            let mut sample = self.loan(len)?;
-            fill(sample.payload_mut())?;
-            // SAFETY: `fill` returned Ok, which for both callers means it wrote every byte of
-            // the payload (`send` copies exactly `len` bytes; `Prepared::write` succeeds only
-            // when it filled the destination exactly).
-            let sample = unsafe { sample.assume_init() };
+            let sample = fill(self.loan(len)?)?;
             let delivered = sample.send().map_err(|e| match e {
                 // Our backpressure handler gave up after the publish timeout.
                 SendError::UnableToDeliver => self.timed_out(),
@@ -394,11 +381,7 @@ impl IoxPublisher {
                 return Err(self.timed_out());
             }
             retries += 1;
-            if retries > 64 {
-                std::thread::sleep(Duration::from_micros(50));
-            } else {
-                std::thread::yield_now();
-            }
+            back_off(retries);
         }
     }
 
@@ -409,10 +392,7 @@ impl IoxPublisher {
         }
     }
 
-    fn loan(
-        &self,
-        len: usize,
-    ) -> Result<SampleMutUninit<Svc, [MaybeUninit<u8>], u64>, TransportError> {
+    fn loan(&self, len: usize) -> Result<Loaned, TransportError> {
         let mut sample = self.publisher.loan_slice_uninit(len).map_err(|e| match e {
             LoanError::ExceedsMaxLoanSize => TransportError::Iceoryx {
                 op: "loan sample",
