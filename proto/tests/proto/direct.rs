@@ -106,6 +106,13 @@ fn random_batch(rng: &mut StdRng, max_steps: u32) -> TransitionBatch {
     b
 }
 
+/// The `i`-th message of a run: every 200th a long batch (up to 10,000 steps), which reaches
+/// the 16- and 32-bit length markers of `bin` and the 16-bit one of arrays.
+fn random_message(rng: &mut StdRng, i: u32) -> (Header, TransitionBatch) {
+    let max_steps = if i.is_multiple_of(200) { 10_000 } else { 60 };
+    (random_header(rng), random_batch(rng, max_steps))
+}
+
 /// serde's encoding, the reference (named fields, as `codec` configures rmp-serde).
 fn serde_bytes(header: &Header, body: &TransitionBatch) -> Vec<u8> {
     rmp_serde::to_vec_named(&Message {
@@ -126,9 +133,7 @@ fn same_as_serde(bytes: &[u8]) -> Result<Message<TransitionBatch>, DecodeError> 
 fn encoder_writes_serdes_bytes() {
     let mut rng = StdRng::seed_from_u64(11);
     for i in 0..2_000 {
-        // A few long batches reach the 16- and 32-bit length markers of bin and array.
-        let max_steps = if i % 200 == 0 { 10_000 } else { 60 };
-        let (h, b) = (random_header(&mut rng), random_batch(&mut rng, max_steps));
+        let (h, b) = random_message(&mut rng, i);
         assert_eq!(
             encode(&h, &b).expect("encode"),
             serde_bytes(&h, &b),
@@ -141,8 +146,7 @@ fn encoder_writes_serdes_bytes() {
 fn decoder_takes_the_fast_path_and_agrees_with_serde() {
     let mut rng = StdRng::seed_from_u64(12);
     for i in 0..2_000 {
-        let max_steps = if i % 200 == 0 { 10_000 } else { 60 };
-        let (h, b) = (random_header(&mut rng), random_batch(&mut rng, max_steps));
+        let (h, b) = random_message(&mut rng, i);
         let bytes = encode(&h, &b).expect("encode");
         let direct = TransitionBatch::decode_direct(&bytes).expect("fast path taken");
         assert_eq!((&direct.header, &direct.body), (&h, &b), "batch {i}");
