@@ -1,28 +1,27 @@
 #!/usr/bin/env bash
-# Regenerates the README's pictures with the project itself: four methods trained on
-# env1-invisible with the reduced schedule of docs/pictures.toml (about 40 minutes on 2 cores),
-# evaluated with ORCA on all six settings, then plotted.
+# Regenerates the README's pictures from the shipped models (models/) and, for the learning
+# curves, the runs they came from (runs/reproduce, made by `fsrl reproduce`; docs/REPRODUCTION.md).
+# Every model trained on env1-invisible with seed 0 is evaluated with ORCA on all six settings.
 #   docs/make-pictures.sh [FSRL_BINARY]
 set -euo pipefail
 cd "$(dirname "$0")/.."
 FSRL=${1:-target/release/fsrl}
-RUNS=${RUNS:-runs/pictures}
+RUNS=${RUNS:-runs/reproduce}
 OUT=docs/pictures
-EPISODES=${EPISODES:-200}
-mkdir -p "$RUNS" "$OUT"
-for m in sarl sarl+foresight sarl+efficiency fsrl; do
-  d="$RUNS/$m"
-  if [ ! -f "$d/checkpoints/latest.ckpt" ] || [ ! -f "$d/report.json" ]; then
-    rm -rf "$d"
-    "$FSRL" train --single-process --config docs/pictures.toml --method "$m" \
-      --setting env1-invisible --seed 0 --out "$d"
-  fi
-done
-"$FSRL" eval --orca "$RUNS/sarl" "$RUNS/fsrl" "$RUNS/sarl+foresight" "$RUNS/sarl+efficiency" \
-  --episodes "$EPISODES" --out "$RUNS/eval"
-"$FSRL" plot bars "$RUNS/eval/eval.json" --out "$OUT/bars"
-"$FSRL" plot curves "$RUNS/sarl" "$RUNS/fsrl" --out "$OUT/curves"
-"$FSRL" plot ablation "$RUNS/eval/eval.json" --out "$OUT/ablation"
-"$FSRL" plot episode "$RUNS/fsrl" --seed 1000 --out "$OUT/episode" --gif-size 300 --stride 2
-cp "$RUNS/eval/eval.md" "$OUT/eval.md"
+EPISODES=${EPISODES:-500}
+mkdir -p "$OUT"
+shopt -s nullglob
+models=(models/*-env1-invisible-s0.fsrlm)
+if [ ${#models[@]} -eq 0 ]; then
+  echo "no models/*-env1-invisible-s0.fsrlm: run fsrl reproduce first" >&2
+  exit 1
+fi
+"$FSRL" eval --orca "${models[@]}" --episodes "$EPISODES" --out "$RUNS/eval-six"
+"$FSRL" plot bars "$RUNS/eval-six/eval.json" --out "$OUT/bars"
+"$FSRL" plot ablation "$RUNS/eval-six/eval.json" --out "$OUT/ablation" || echo "no ablation picture (needs sarl, sarl+foresight, sarl+efficiency and fsrl models)" >&2
+curves=("$RUNS"/sarl-env1-invisible-s* "$RUNS"/fsrl-env1-invisible-s*)
+curves=("${curves[@]%.log}")
+"$FSRL" plot curves $(printf '%s\n' "${curves[@]}" | sort -u) --out "$OUT/curves"
+"$FSRL" plot episode models/fsrl-env1-invisible-s0.fsrlm --seed 1000 --out "$OUT/episode" --gif-size 300 --stride 2
+cp "$RUNS/eval-six/eval.md" "$OUT/eval.md"
 echo "pictures in $OUT"

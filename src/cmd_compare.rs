@@ -206,6 +206,22 @@ impl Group {
         Stat::of(&self.values(metric, setting))
     }
 
+    /// The most runs any one setting has: all of them when every run is evaluated on all six
+    /// settings, the seeds when each run covers only the setting it was trained in (the grid of
+    /// `fsrl reproduce`).
+    pub fn runs_per_setting(&self) -> usize {
+        Setting::ALL
+            .iter()
+            .map(|&s| {
+                self.members
+                    .iter()
+                    .filter(|m| m.setting(s).is_some())
+                    .count()
+            })
+            .max()
+            .unwrap_or(0)
+    }
+
     /// The member's own record when the group has exactly one run with this setting.
     pub fn single(&self, setting: Setting) -> Option<&SettingReport> {
         let mut it = self.members.iter().filter_map(|m| m.setting(setting));
@@ -276,7 +292,7 @@ fn to_json(groups: &[Group]) -> CompareJson {
 /// The comparison in the paper's layout.
 pub fn markdown(groups: &[Group]) -> String {
     let mut s = String::from(
-        "# Comparison\n\nMean ± standard deviation over the runs (seeds) of each method; a single run shows its value alone. AVG is the mean over Env 1–3. Rows marked (paper) are the paper's Tables I–II (SPEC §8).\n\n",
+        "# Comparison\n\nMean ± standard deviation over the runs (seeds) of each method; a single run shows its value alone; n is the number of runs per setting. AVG is the mean over Env 1–3. Rows marked (paper) are the paper's Tables I–II (SPEC §8).\n\n",
     );
     s += "| method | runs |\n|---|---|\n";
     for g in groups {
@@ -297,7 +313,7 @@ pub fn markdown(groups: &[Group]) -> String {
                 },
                 d,
             );
-            let _ = writeln!(s, "| {} (n={}) |{row}", g.method, g.members.len());
+            let _ = writeln!(s, "| {} (n={}) |{row}", g.method, g.runs_per_setting());
             if let Some(p) = paper_row(metric, &g.method) {
                 let _ = writeln!(s, "{p}");
             }

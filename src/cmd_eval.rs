@@ -1,5 +1,5 @@
-//! `fsrl eval`: scores checkpoints (or the ORCA baseline) on the test seeds of all six settings
-//! with the paper's five metrics plus path length, smoothness and return, with 95% intervals, and
+//! `fsrl eval`: scores model files, checkpoints (or the ORCA baseline) on the test seeds of all
+//! six settings with the paper's five metrics plus path length, smoothness and return, with 95% intervals, and
 //! writes `eval.md` (the paper's table layout beside the paper's numbers), `eval.csv` and
 //! `eval.json`.
 //!
@@ -13,7 +13,7 @@ use std::sync::Mutex;
 use anyhow::{bail, Context};
 use evaluator::{evaluate, Subject};
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
-use learner::checkpoint::{self, Loaded};
+use learner::model::{self, ArtifactKind, Model};
 use policy::lookahead::HumanModel;
 use policy::method::Method;
 use sim::{Aggregate, Setting, SimConfig};
@@ -23,8 +23,9 @@ use crate::report::{EvalReport, Samples, SettingReport, SubjectReport, EVAL_KIND
 
 #[derive(Debug, clap::Args)]
 pub struct EvalArgs {
-    /// Checkpoints (.ckpt files) or run directories of `fsrl train` (their
-    /// checkpoints/latest.ckpt).
+    /// Model files (.fsrlm, from `fsrl export-model`), checkpoints (.ckpt files) or run
+    /// directories of `fsrl train` (their checkpoints/latest.ckpt); a file's kind is read from
+    /// its first bytes.
     pub inputs: Vec<PathBuf>,
     /// Also evaluate the ORCA baseline.
     #[arg(long)]
@@ -45,8 +46,8 @@ pub struct EvalArgs {
     /// Worker threads [default: all cores].
     #[arg(long)]
     pub threads: Option<usize>,
-    /// Simulator config for the ORCA baseline (TOML with a [sim] table; checkpoints carry their
-    /// own).
+    /// Simulator config for the ORCA baseline (TOML with a [sim] table; models and checkpoints
+    /// carry their own).
     #[arg(long)]
     pub config: Option<PathBuf>,
     /// Extra radius the ORCA robot keeps from humans (CrowdNav: 0 at test time).
@@ -54,13 +55,14 @@ pub struct EvalArgs {
     pub safety_space_m: f64,
 }
 
-/// A checkpoint path and the run directory it belongs to, if any.
+/// A policy file (model file or checkpoint) and the run directory it belongs to, if any.
 pub struct Input {
     pub checkpoint: PathBuf,
     pub run_dir: Option<PathBuf>,
 }
 
-/// A run directory means its `checkpoints/latest.ckpt`; anything else is a checkpoint file.
+/// A run directory means its `checkpoints/latest.ckpt`; anything else is a model file or a
+/// checkpoint.
 pub fn resolve_input(path: &Path) -> anyhow::Result<Input> {
     if path.is_dir() {
         let ckpt = path.join("checkpoints").join("latest.ckpt");
@@ -107,9 +109,22 @@ pub fn label_of(input: &Input) -> String {
     }
 }
 
-/// Loads a checkpoint with a message naming it.
-pub fn load_checkpoint(path: &Path) -> anyhow::Result<Loaded> {
-    checkpoint::load(path).with_context(|| format!("cannot load checkpoint {}", path.display()))
+/// Loads the policy of a model file or a checkpoint (told apart by content) with a message
+/// naming it.
+pub fn load_policy(path: &Path) -> anyhow::Result<(Model, ArtifactKind)> {
+    model::load_policy(path).with_context(|| format!("cannot load {}", path.display()))
+}
+
+/// A model file names its method, trained setting and seed (its file name need not); a
+/// checkpoint keeps its run's name.
+pub fn subject_label(input: &Input, model: &Model, kind: ArtifactKind) -> String {
+    match kind {
+        ArtifactKind::Model => format!(
+            "{} (trained {}, seed {})",
+            model.method, model.setting, model.run_seed
+        ),
+        ArtifactKind::Checkpoint => label_of(input),
+    }
 }
 
 /// Runs `episodes` test episodes per setting of one subject, one episode per evaluator call,
@@ -207,7 +222,9 @@ pub fn parse_settings(names: &[String]) -> anyhow::Result<Vec<Setting>> {
 
 pub fn run(args: EvalArgs) -> anyhow::Result<()> {
     if args.inputs.is_empty() && !args.orca {
-        bail!("nothing to evaluate: name checkpoints or run directories, or pass --orca");
+        bail!(
+            "nothing to evaluate: name model files, checkpoints or run directories, or pass --orca"
+        );
     }
     if args.episodes == 0 {
         bail!("--episodes must be at least 1");
@@ -264,22 +281,20 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
         });
     }
     for input in &inputs {
-        let loaded = load_checkpoint(&input.checkpoint)?;
-        let core = &loaded.core;
-        let method = core.method();
-        let label = label_of(input);
-        let train = core.config();
+        let (model, kind) = load_policy(&input.checkpoint)?;
+        let method = model.method;
+        let label = subject_label(input, &model, kind);
         let subject = Subject {
             method,
-            net: Some(core.online()),
-            gamma: train.gamma,
-            human_model: train.human_model.into(),
+            net: Some(&model.net),
+            gamma: model.train.gamma,
+            human_model: model.train.human_model.into(),
             orca_safety_space_m: args.safety_space_m,
         };
         let bar = progress(per_subject, &label.chars().take(12).collect::<String>());
         let reports = evaluate_subject(
             subject,
-            &loaded.sim,
+            &model.sim,
             &settings,
             args.seed_start,
             args.episodes,
@@ -289,16 +304,16 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
         .with_context(|| format!("evaluating {}", input.checkpoint.display()))?;
         bar.finish_and_clear();
         eprintln!(
-            "evaluated {label} ({method}, policy version {})",
-            core.counters().policy_version
+            "evaluated {label} ({method} trained on {}, policy version {})",
+            model.setting, model.counters.policy_version
         );
         subjects.push(SubjectReport {
             label,
             method: method.name().to_string(),
             checkpoint: Some(input.checkpoint.display().to_string()),
-            policy_version: core.counters().policy_version,
-            run_seed: Some(loaded.run.run_seed),
-            trained_setting: Some(loaded.run.setting.clone()),
+            policy_version: model.counters.policy_version,
+            run_seed: Some(model.run_seed),
+            trained_setting: Some(model.setting.name().to_string()),
             settings: reports,
         });
     }

@@ -1,6 +1,7 @@
 //! `fsrl plot ...`: the pictures, each as SVG and PNG (and a GIF of an episode):
 //! `bars` (outcome rates per setting and method, paper Fig. 5), `curves` (learning curves from
-//! metrics.jsonl), `ablation` (paper Fig. 8–9) and `episode` (a trajectory with attention
+//! metrics.jsonl, and the validation curves against RL episodes and wall-clock time, seeds of a
+//! method together), `ablation` (paper Fig. 8–9) and `episode` (a trajectory with attention
 //! weights at chosen times, paper Fig. 7, plus an animated GIF).
 
 use std::path::PathBuf;
@@ -8,11 +9,11 @@ use std::path::PathBuf;
 use anyhow::{bail, Context};
 use policy::lookahead::{HumanModel, Lookahead};
 use policy::method::Method;
-use sim::{run_episode, Env, Outcome, Setting};
+use sim::{run_episode, Env, Setting};
 use viz::{Interval, OutcomeCell};
 
 use crate::cmd_compare::{group, load_sources, Group};
-use crate::cmd_eval::{label_of, load_checkpoint, resolve_input};
+use crate::cmd_eval::{label_of, load_policy, resolve_input};
 use crate::config::FileConfig;
 use crate::report::Metric;
 
@@ -26,7 +27,8 @@ pub struct PlotArgs {
 pub enum PlotCommand {
     /// Success / collision / timeout rates per setting and method (paper Fig. 5).
     Bars(BarsArgs),
-    /// Success rate, return and loss against RL episodes, from runs' metrics.jsonl.
+    /// Success rate, return and loss against RL episodes, and the validation success, collision
+    /// and Disc. against RL episodes and wall-clock time, from runs' metrics.jsonl.
     Curves(CurvesArgs),
     /// The reward ablation: sarl (R_c), sarl+foresight (+R_f), sarl+efficiency (+R_t), fsrl (all).
     Ablation(AblationArgs),
@@ -48,10 +50,13 @@ pub struct BarsArgs {
 
 #[derive(Debug, clap::Args)]
 pub struct CurvesArgs {
-    /// Run directories (their metrics.jsonl) or metrics.jsonl files.
+    /// Run directories (their metrics.jsonl) or metrics.jsonl files. Runs named alike but for
+    /// a final `-s<seed>` (fsrl-env1-invisible-s0, fsrl-env1-invisible-s1, ...) share a colour
+    /// in the validation curves: their mean and min–max band.
     #[arg(required = true)]
     pub runs: Vec<PathBuf>,
-    /// Output path without extension: writes OUT.svg and OUT.png.
+    /// Output path without extension: writes OUT.svg and OUT.png, and, from the runs with
+    /// validation lines, OUT-validation-episodes.{svg,png} and OUT-validation-time.{svg,png}.
     #[arg(long, default_value = "curves")]
     pub out: PathBuf,
     /// Moving-average window (episodes) for return and loss.
@@ -78,7 +83,7 @@ pub struct AblationArgs {
 
 #[derive(Debug, clap::Args)]
 pub struct EpisodeArgs {
-    /// A checkpoint or run directory (omit with --orca).
+    /// A model file, checkpoint or run directory (omit with --orca).
     pub input: Option<PathBuf>,
     /// Picture the ORCA baseline instead.
     #[arg(long)]
@@ -212,18 +217,60 @@ fn curves(a: CurvesArgs) -> anyhow::Result<Vec<PathBuf>> {
             .unwrap_or_else(|| path.display().to_string());
         runs.push(viz::CurveRun { label, metrics });
     }
-    if runs
-        .iter()
-        .all(|r| r.metrics.rl.is_empty() && r.metrics.imitation.is_empty())
-    {
-        bail!("no imitation or RL lines in {:?}", a.runs);
+    if runs.iter().all(|r| {
+        let m = &r.metrics;
+        m.rl.is_empty() && m.imitation.is_empty() && m.validation.is_empty()
+    }) {
+        bail!("no imitation, RL or validation lines in {:?}", a.runs);
     }
-    let fig = viz::LearningCurves {
-        title: a.title.unwrap_or_else(|| "Learning curves".into()),
-        runs,
-        window: a.window.max(1),
-    };
-    Ok(viz::save(&fig, &a.out)?)
+    let title = a.title.unwrap_or_else(|| "Learning curves".into());
+    let validated: Vec<viz::CurveRun> = runs
+        .iter()
+        .filter(|r| !r.metrics.validation.is_empty())
+        .cloned()
+        .collect();
+    for r in runs.iter().filter(|r| r.metrics.validation.is_empty()) {
+        eprintln!(
+            "note: {} has no validation lines (`fsrl train` writes them every \
+             train.validation_every_episodes RL episodes); it is in the learning curves only",
+            r.label
+        );
+    }
+    let mut written = viz::save(
+        &viz::LearningCurves {
+            title: title.clone(),
+            runs,
+            window: a.window.max(1),
+        },
+        &a.out,
+    )?;
+    if validated.is_empty() {
+        eprintln!("note: no run has validation lines: no validation curves drawn");
+        return Ok(written);
+    }
+    let groups = viz::group_runs(validated);
+    for (axis, suffix, against) in [
+        (
+            viz::ValidationAxis::Episodes,
+            "validation-episodes",
+            "RL episodes",
+        ),
+        (
+            viz::ValidationAxis::WallClock,
+            "validation-time",
+            "wall-clock time",
+        ),
+    ] {
+        let mut stem = a.out.clone().into_os_string();
+        stem.push(format!("-{suffix}"));
+        let fig = viz::ValidationCurves {
+            title: format!("{title}: validation against {against}"),
+            groups: groups.clone(),
+            axis,
+        };
+        written.extend(viz::save(&fig, &PathBuf::from(stem))?);
+    }
+    Ok(written)
 }
 
 fn ablation(a: AblationArgs) -> anyhow::Result<Vec<PathBuf>> {
@@ -317,18 +364,18 @@ fn ablation(a: AblationArgs) -> anyhow::Result<Vec<PathBuf>> {
 
 fn episode(a: EpisodeArgs) -> anyhow::Result<Vec<PathBuf>> {
     if a.orca == a.input.is_some() {
-        bail!("name one checkpoint or run directory, or pass --orca");
+        bail!("name one model file, checkpoint or run directory, or pass --orca");
     }
     let loaded = match &a.input {
         Some(p) => {
             let input = resolve_input(p)?;
             let label = label_of(&input);
-            Some((load_checkpoint(&input.checkpoint)?, label))
+            Some((load_policy(&input.checkpoint)?.0, label))
         }
         None => None,
     };
     let (method, sim_cfg, trained) = match &loaded {
-        Some((l, _)) => (l.core.method(), l.sim.clone(), Some(l.run.setting.clone())),
+        Some((l, _)) => (l.method, l.sim.clone(), Some(l.setting.name().to_string())),
         None => (Method::Orca, FileConfig::default().sim, None),
     };
     let setting_name = a
@@ -346,10 +393,10 @@ fn episode(a: EpisodeArgs) -> anyhow::Result<Vec<PathBuf>> {
     let episode = match &loaded {
         None => run_episode(&mut env, |env| env.orca_robot_action(0.0), true)?,
         Some((l, _)) => {
-            let train = l.core.config();
+            let train = &l.train;
             let human_model: HumanModel = train.human_model.into();
             let mut la = Lookahead::new(train.gamma, human_model, method.human_order());
-            let net = l.core.online();
+            let net = &l.net;
             run_episode(
                 &mut env,
                 |env| match la.decide(env, net) {
@@ -374,53 +421,20 @@ fn episode(a: EpisodeArgs) -> anyhow::Result<Vec<PathBuf>> {
     if let Some(e) = failure {
         return Err(anyhow::Error::new(e).context("the policy failed during the episode"));
     }
-    let outcome = match episode.summary.outcome {
-        Outcome::ReachGoal => format!("success after {:.2} s", episode.summary.time_s),
-        Outcome::Collision => format!("collision at {:.2} s", episode.summary.time_s),
-        Outcome::Timeout => format!("timeout at {:.2} s", episode.summary.time_s),
-        Outcome::Running => "unfinished".into(),
-    };
     let who = loaded.as_ref().map_or_else(
         || "orca".to_string(),
         |(_, label)| format!("{method} ({label})"),
     );
-    let frames: Vec<viz::TraceFrame> = episode
-        .frames
-        .iter()
-        .enumerate()
-        .map(|(k, f)| viz::TraceFrame {
-            time_s: f.time_s,
-            robot: (f.robot.position.x, f.robot.position.y),
-            heading_rad: f.robot.heading_rad,
-            humans: f.humans.iter().map(|p| (p.x, p.y)).collect(),
-            attention: attention.get(k).cloned().flatten(),
-        })
-        .collect();
-    let end = frames.last().map_or(0.0, |f| f.time_s);
+    let title = format!("{who} on {setting}, seed {}", a.seed);
+    let trace = crate::picture::trace(title, &episode, &humans0, &attention);
     let times = if a.times.is_empty() {
-        vec![end / 3.0, 2.0 * end / 3.0, end]
+        crate::picture::default_times(&trace)
     } else {
         a.times.clone()
     };
     if let Some(t) = times.iter().find(|t| !t.is_finite() || **t < 0.0) {
         bail!("--times: {t} is not a time within the episode");
     }
-    let robot = frames.first().map(|_| env.robot());
-    let trace = viz::EpisodeTrace {
-        title: format!("{who} on {setting}, seed {}", a.seed),
-        robot_radius_m: robot.map_or(0.3, |r| r.radius_m),
-        robot_goal: robot.map_or((0.0, 4.0), |r| (r.goal.x, r.goal.y)),
-        humans: humans0
-            .iter()
-            .map(|h| viz::HumanInfo {
-                radius_m: h.radius_m,
-                standing: h.standing,
-                goal: (h.goal.x, h.goal.y),
-            })
-            .collect(),
-        frames,
-        outcome,
-    };
     let mut written = viz::save(
         &viz::Trajectory {
             trace: trace.clone(),

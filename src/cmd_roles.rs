@@ -176,8 +176,9 @@ pub fn actor(args: ActorArgs) -> anyhow::Result<()> {
 pub struct EvaluatorArgs {
     #[command(flatten)]
     pub common: CommonArgs,
-    /// Evaluate this checkpoint file and exit (no transport).
-    #[arg(long)]
+    /// Evaluate this checkpoint or model file (.fsrlm; the kind is read from its first bytes)
+    /// and exit (no transport).
+    #[arg(long, visible_alias = "model")]
     pub checkpoint: Option<PathBuf>,
     /// Evaluate a snapshot every N RL episodes (0: only the final weights)
     #[arg(long)]
@@ -217,19 +218,17 @@ pub fn evaluator(args: EvaluatorArgs) -> anyhow::Result<()> {
             .unwrap_or_else(|| r.run_dir().join("eval")),
     };
     if let Some(path) = &args.checkpoint {
-        // Offline: the checkpoint says what it is.
-        let loaded = learner::checkpoint::load(path)?;
-        let core = &loaded.core;
-        let train = core.config();
+        // Offline: the checkpoint or model says what it is.
+        let (model, _) = learner::model::load_policy(path)?;
         let subject = evaluator::Subject {
-            method: core.method(),
-            net: Some(core.online()),
-            gamma: train.gamma,
-            human_model: train.human_model.into(),
+            method: model.method,
+            net: Some(&model.net),
+            gamma: model.train.gamma,
+            human_model: model.train.human_model.into(),
             orca_safety_space_m: 0.0,
         };
-        // The checkpoint's simulator config already carries the method's reward switches.
-        let base = loaded.sim.clone();
+        // The simulator config the policy was trained with (the method's switches applied).
+        let base = model.sim.clone();
         let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
         let results = evaluator::evaluate(
             subject,
@@ -239,14 +238,19 @@ pub fn evaluator(args: EvaluatorArgs) -> anyhow::Result<()> {
             opts.episodes_per_setting,
             threads,
         )?;
-        let trained = core.counters().rl_episodes;
+        let trained = model.counters.rl_episodes;
         let report = evaluator::process::report(&results, trained, true);
         std::fs::create_dir_all(&opts.out_dir)
             .with_context(|| format!("cannot create {}", opts.out_dir.display()))?;
-        let md = evaluator::process::markdown(
-            &report,
-            core.method().name(),
-            core.counters().policy_version,
+        let md = format!(
+            "{}\nTrained on {} (run seed {}).\n",
+            evaluator::process::markdown(
+                &report,
+                model.method.name(),
+                model.counters.policy_version,
+            ),
+            model.setting,
+            model.run_seed
         );
         std::fs::write(
             opts.out_dir.join("report.json"),

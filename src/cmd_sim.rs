@@ -1,5 +1,5 @@
 //! `fsrl sim`: the ORCA robot on the six settings, the paper's metrics as a table, and an episode
-//! as an SVG picture; or the ORCA robot on explicit scenes from a file (`--scenes`), e.g.
+//! as an SVG picture (drawn by `viz`, as `fsrl plot episode` draws it); or the ORCA robot on explicit scenes from a file (`--scenes`), e.g.
 //! CrowdNav's 500 test scenes beside CrowdNav's own numbers.
 
 use std::path::{Path, PathBuf};
@@ -12,7 +12,7 @@ use sim::{
 };
 
 use crate::config::FileConfig;
-use crate::svg;
+use crate::picture;
 
 #[derive(Debug, clap::Args)]
 pub struct SimArgs {
@@ -33,7 +33,8 @@ pub struct SimArgs {
     /// Extra radius the ORCA robot keeps from humans (CrowdNav: 0 at test time).
     #[arg(long, default_value_t = 0.0)]
     pub safety_space_m: f64,
-    /// Write one episode as an SVG picture to this file.
+    /// Write one episode as an SVG picture to this file (panels at a third, two thirds and the
+    /// end of the episode, drawn as `fsrl plot episode` draws them).
     #[arg(long)]
     pub svg: Option<PathBuf>,
     /// Setting of the pictured episode (default: the first one run).
@@ -152,23 +153,21 @@ pub fn run(args: SimArgs) -> anyhow::Result<()> {
         let humans = env.humans().to_vec();
         let safety = args.safety_space_m;
         let episode = run_episode_with(&mut env, |env| env.orca_robot_command(safety), true)?;
-        let title = format!(
-            "{setting} · seed {seed} · ORCA robot · {} after {:.2} s",
-            episode.summary.outcome.name(),
-            episode.summary.time_s
+        let title = format!("ORCA robot on {setting}, seed {seed}");
+        let trace = picture::trace(title.clone(), &episode, &humans, &[]);
+        let times_s = picture::default_times(&trace);
+        let svg = viz::to_svg_string(&viz::Trajectory { trace, times_s })
+            .with_context(|| format!("cannot draw {}", path.display()))?;
+        std::fs::write(path, svg).with_context(|| format!("cannot write {}", path.display()))?;
+        let sum = &episode.summary;
+        println!(
+            "\nwrote {} ({title}: {}, path {:.2} m, {} danger steps, closest {:.3} m)",
+            path.display(),
+            picture::outcome(sum),
+            sum.path_length_m,
+            sum.danger_steps,
+            sum.min_closest_m
         );
-        let picture = svg::render(
-            &episode,
-            &humans,
-            cfg.dt_s,
-            &svg::PictureInfo {
-                title: &title,
-                policy: "ORCA",
-            },
-        );
-        std::fs::write(path, picture)
-            .with_context(|| format!("cannot write {}", path.display()))?;
-        println!("\nwrote {} ({title})", path.display());
     }
     Ok(())
 }

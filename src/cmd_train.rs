@@ -74,6 +74,81 @@ struct MetricsLine<'a> {
     wall_s: f64,
 }
 
+/// The largest `wall_s` in a metrics log (zero when there is none).
+fn last_wall(path: &Path) -> Duration {
+    let text = std::fs::read_to_string(path).unwrap_or_default();
+    let wall_s = text
+        .lines()
+        .filter_map(|l| serde_json::from_str::<serde_json::Value>(l).ok())
+        .filter_map(|v| v.get("wall_s").and_then(|w| w.as_f64()))
+        .filter(|w| w.is_finite() && *w >= 0.0)
+        .fold(0.0, f64::max);
+    Duration::from_secs_f64(wall_s)
+}
+
+/// One point of the learning curve: the greedy policy on the validation seeds of the run's
+/// setting after `episode` RL episodes (`phase = "validation"` in `metrics.jsonl`).
+#[derive(Serialize)]
+pub(crate) struct ValidationLine {
+    phase: &'static str,
+    /// RL episodes trained so far.
+    episode: u64,
+    env_steps: u64,
+    policy_version: u64,
+    episodes: u32,
+    seed_start: u64,
+    success_rate: f64,
+    collision_rate: f64,
+    timeout_rate: f64,
+    discomfort: f64,
+    nav_time_s: Option<f64>,
+    mean_return: f64,
+    /// Wall-clock seconds since the run (or its resumption) started, validation included.
+    wall_s: f64,
+}
+
+fn validation_line(
+    core: &LearnerCore,
+    train: &policy::method::TrainConfig,
+    sim: &sim::SimConfig,
+    setting: sim::Setting,
+    elapsed: Duration,
+) -> anyhow::Result<ValidationLine> {
+    let subject = Subject {
+        method: core.method(),
+        net: Some(core.online()),
+        gamma: train.gamma,
+        human_model: train.human_model.into(),
+        orca_safety_space_m: 0.0,
+    };
+    let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
+    let results = evaluate(
+        subject,
+        sim,
+        &[setting],
+        train.validation_seed_start,
+        train.validation_episodes,
+        threads,
+    )?;
+    let a = &results[0].aggregate;
+    let c = core.counters();
+    Ok(ValidationLine {
+        phase: "validation",
+        episode: c.rl_episodes,
+        env_steps: c.env_steps,
+        policy_version: c.policy_version,
+        episodes: a.episodes,
+        seed_start: train.validation_seed_start,
+        success_rate: a.success_rate(),
+        collision_rate: a.collision_rate(),
+        timeout_rate: a.timeout_rate(),
+        discomfort: a.discomfort(),
+        nav_time_s: a.nav_time_s(),
+        mean_return: a.mean_return(),
+        wall_s: elapsed.as_secs_f64(),
+    })
+}
+
 pub(crate) fn resolve(args: &TrainArgs) -> anyhow::Result<Resolved> {
     let mut file = args.run.load()?;
     let mut problems = Vec::new();
@@ -196,6 +271,12 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
         accepted_below: Default::default(),
     };
     let metrics_path = out.join("metrics.jsonl");
+    // A resumed run's clock goes on from where its metrics left off.
+    let wall0 = if args.resume {
+        last_wall(&metrics_path)
+    } else {
+        Duration::ZERO
+    };
     let mut metrics = std::fs::OpenOptions::new()
         .create(true)
         .append(true)
@@ -237,13 +318,23 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
             }
         }
         bar.finish_and_clear();
+        // The loss is only meaningful against the spread of its targets (an MSE near the
+        // variance means the network predicts little more than the mean return).
+        let returns = core.replay().columns().returns;
+        let n = returns.len().max(1) as f64;
+        let mean = returns.iter().map(|&r| r as f64).sum::<f64>() / n;
+        let target_var = returns
+            .iter()
+            .map(|&r| (r as f64 - mean).powi(2))
+            .sum::<f64>()
+            / n;
         let bar = progress_bar(train.imitation.epochs as u64, "imitation");
         bar.set_message(format!("{} transitions", core.replay().len()));
         core.imitation(train.imitation.epochs, |epoch, loss| {
             bar.inc(1);
             bar.set_message(format!("loss {loss:.5}"));
             plain.tick(&bar, false);
-            let line = serde_json::json!({"phase": "imitation", "epoch": epoch, "loss": loss, "wall_s": start.elapsed().as_secs_f64()});
+            let line = serde_json::json!({"phase": "imitation", "epoch": epoch, "loss": loss, "target_mean": mean, "target_var": target_var, "wall_s": (wall0 + start.elapsed()).as_secs_f64()});
             let _ = writeln!(metrics, "{line}");
         })?;
         bar.finish_and_clear();
@@ -266,6 +357,15 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
     bar.reset_eta();
     let rl_start = Instant::now();
     let mut interrupted = false;
+    let validate_every = train.validation_every_episodes;
+    let validate = |core: &LearnerCore, metrics: &mut std::fs::File| -> anyhow::Result<()> {
+        let line = validation_line(core, &train, &file.sim, setting, wall0 + start.elapsed())?;
+        writeln!(metrics, "{}", serde_json::to_string(&line)?)?;
+        Ok(())
+    };
+    if validate_every > 0 && first == 0 {
+        validate(&core, &mut metrics)?;
+    }
     for k in first..train.rl.episodes {
         let epsilon = core.epsilon();
         let version = core.counters().policy_version;
@@ -304,7 +404,7 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
             policy_version: c.policy_version,
             env_steps: c.env_steps,
             replay_size: core.replay().len(),
-            wall_s: start.elapsed().as_secs_f64(),
+            wall_s: (wall0 + start.elapsed()).as_secs_f64(),
         };
         writeln!(metrics, "{}", serde_json::to_string(&line)?)?;
         bar.inc(1);
@@ -313,6 +413,10 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
             line.success_rate_window
         ));
         plain.tick(&bar, false);
+        if validate_every > 0 && ((k + 1) % validate_every == 0 || k + 1 == train.rl.episodes) {
+            validate(&core, &mut metrics)?;
+            bar.reset_eta();
+        }
         let every = train.checkpoint_every_episodes;
         if every > 0 && (k + 1) % every == 0 {
             save(&core, &latest)?;

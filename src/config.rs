@@ -78,6 +78,12 @@ pub fn run_checkpoint(dir: &Path, resume: bool) -> anyhow::Result<std::path::Pat
     Ok(ckpt)
 }
 
+/// `<method>-<setting>-s<seed>`, `+` written as `-` (`sarl-foresight-env1-invisible-s0`): the
+/// name of a run's directory (`fsrl train`, `fsrl reproduce`).
+pub fn run_name(method: Method, setting: Setting, seed: u64) -> String {
+    format!("{}-{setting}-s{seed}", method.name().replace('+', "-"))
+}
+
 /// What one training run is.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
@@ -252,11 +258,10 @@ impl Resolved {
 
     /// `runs/<method>-<setting>-s<seed>`: where `fsrl train` puts a run by default.
     pub fn default_run_dir(&self) -> std::path::PathBuf {
-        std::path::PathBuf::from("runs").join(format!(
-            "{}-{}-s{}",
-            self.method.name().replace('+', "-"),
+        std::path::PathBuf::from("runs").join(run_name(
+            self.method,
             self.setting,
-            self.file.run.seed
+            self.file.run.seed,
         ))
     }
 

@@ -76,6 +76,25 @@ fn spawn(exe: &Path, role: &str, args: &[String], logs: &Path) -> anyhow::Result
         .with_context(|| format!("cannot start the {role} process"))
 }
 
+/// The `phase = "validation"` line of `metrics.jsonl` (the same fields as `fsrl train
+/// --single-process` writes) from an evaluator's metrics message, if it is a validation point.
+fn validation_line(m: &proto::Metrics) -> Option<serde_json::Value> {
+    let v = &m.values;
+    let get = |k: &str| v.get(&format!("validation_{k}")).copied();
+    Some(serde_json::json!({
+        "phase": "validation",
+        "episode": get("episode")? as u64,
+        "episodes": get("episodes")? as u64,
+        "success_rate": get("success_rate")?,
+        "collision_rate": get("collision_rate")?,
+        "timeout_rate": get("timeout_rate")?,
+        "discomfort": get("discomfort")?,
+        "nav_time_s": get("nav_time_s"),
+        "mean_return": get("mean_return")?,
+        "wall_s": m.wall_time_s,
+    }))
+}
+
 pub fn run(args: TrainArgs) -> anyhow::Result<()> {
     let stop = Arc::new(AtomicBool::new(false));
     {
@@ -245,6 +264,13 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
             break status;
         }
         if let Some(msg) = metrics.recv_timeout(Duration::from_millis(200))? {
+            if msg.header.sender.role == Role::Evaluator {
+                // A point of the learning curve (the evaluator also keeps validation.jsonl).
+                if let Some(line) = validation_line(&msg.body) {
+                    let _ = writeln!(log, "{line}");
+                }
+                continue;
+            }
             if msg.header.sender.role != Role::Learner {
                 continue;
             }

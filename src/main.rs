@@ -4,7 +4,9 @@
 mod cmd_check;
 mod cmd_compare;
 mod cmd_eval;
+mod cmd_model;
 mod cmd_plot;
+mod cmd_reproduce;
 mod cmd_roles;
 mod cmd_router;
 mod cmd_sim;
@@ -12,8 +14,8 @@ mod cmd_train;
 mod cmd_watch;
 mod config;
 mod launch;
+mod picture;
 mod report;
-mod svg;
 
 use std::process::ExitCode;
 
@@ -36,12 +38,17 @@ enum Command {
     Sim(cmd_sim::SimArgs),
     /// Train one method on one setting: imitation, then deep V-learning, then evaluation.
     Train(cmd_train::TrainArgs),
-    /// Evaluate checkpoints or ORCA on all six settings: metrics with intervals (md, csv, json).
+    /// Evaluate checkpoints, model files or ORCA on all six settings: metrics with intervals (md,
+    /// csv, json).
     Eval(cmd_eval::EvalArgs),
+    /// Write a run's trained policy as a small model file (.fsrlm) with a recorded check.
+    ExportModel(cmd_model::ExportArgs),
     /// One table across runs: methods × settings, mean ± std over seeds, beside the paper.
     Compare(cmd_compare::CompareArgs),
     /// Pictures (SVG and PNG): outcome bars, learning curves, ablation, episode with attention.
     Plot(cmd_plot::PlotArgs),
+    /// The paper's grid: train methods × settings × seeds (resumable), export, evaluate, report.
+    Reproduce(cmd_reproduce::ReproduceArgs),
     /// The learner process of a distributed run.
     Learner(cmd_roles::LearnerArgs),
     /// An actor process of a distributed run.
@@ -71,8 +78,10 @@ fn main() -> ExitCode {
         Command::Sim(args) => cmd_sim::run(args),
         Command::Train(args) => cmd_train::run(args),
         Command::Eval(args) => cmd_eval::run(args),
+        Command::ExportModel(args) => cmd_model::run(args),
         Command::Compare(args) => cmd_compare::run(args),
         Command::Plot(args) => cmd_plot::run(args),
+        Command::Reproduce(args) => cmd_reproduce::run(args),
         Command::Learner(args) => cmd_roles::learner(args),
         Command::Actor(args) => cmd_roles::actor(args),
         Command::Evaluator(args) => cmd_roles::evaluator(args),

@@ -419,7 +419,7 @@ pub struct SubjectReport {
     pub label: String,
     /// orca, lstm-rl, sarl, fsrl, sarl+foresight, sarl+efficiency
     pub method: String,
-    /// The checkpoint evaluated (null for ORCA).
+    /// The checkpoint or model file evaluated (null for ORCA).
     pub checkpoint: Option<String>,
     pub policy_version: u64,
     /// The training run's seed and setting, when known.

@@ -251,6 +251,28 @@ fn reports_and_every_picture_from_tiny_runs() {
     assert_eq!(curves.wide_polylines, 4 * 2, "4 panels × 2 runs");
     assert!(curves.text.contains("sarl-s0") && curves.text.contains("fsrl-s0"));
     png(&pics.join("curves.png"), &curves);
+    // The validation lines `fsrl train` wrote (if its config validates) make two more pictures.
+    let validated = |run: &Path| {
+        std::fs::read_to_string(run.join("metrics.jsonl"))
+            .unwrap()
+            .contains(r#""phase":"validation""#)
+    };
+    for stem in ["curves-validation-episodes", "curves-validation-time"] {
+        let file = pics.join(format!("{stem}.svg"));
+        assert_eq!(
+            file.exists(),
+            validated(&sarl) || validated(&fsrl_run),
+            "{stem}"
+        );
+        if file.exists() {
+            let v = svg(&file);
+            assert!(v.text.contains("validation success rate"));
+            for (run, label) in [(&sarl, "sarl-s0"), (&fsrl_run, "fsrl-s0")] {
+                assert_eq!(v.text.contains(label), validated(run), "{label} in {stem}");
+            }
+            png(&pics.join(format!("{stem}.png")), &v);
+        }
+    }
 
     ok(&[
         "plot",
@@ -325,6 +347,102 @@ fn reports_and_every_picture_from_tiny_runs() {
     assert!(orca.text.contains("no attention"));
     assert!(!pics.join("orca.gif").exists());
     keep(&pics);
+}
+
+/// A validation line as `fsrl train` writes it.
+fn validation_line(episode: u64, success: f64, wall_s: f64) -> String {
+    format!(
+        r#"{{"phase":"validation","episode":{episode},"env_steps":{},"policy_version":{},"episodes":100,"seed_start":0,"success_rate":{success},"collision_rate":{},"timeout_rate":0.0,"discomfort":0.1,"nav_time_s":12.5,"mean_return":0.2,"wall_s":{wall_s}}}"#,
+        40 * episode,
+        episode + 20,
+        1.0 - success
+    )
+}
+
+fn rl_line(episode: u64, wall_s: f64) -> String {
+    format!(
+        r#"{{"phase":"rl","episode":{episode},"epsilon":0.3,"outcome":"collision","steps":20,"return_sum":-0.25,"loss":0.02,"success_rate_window":0.0,"collision_rate_window":1.0,"timeout_rate_window":0.0,"policy_version":{episode},"env_steps":{},"replay_size":500,"wall_s":{wall_s}}}"#,
+        20 * episode
+    )
+}
+
+#[test]
+fn validation_curves_put_the_seeds_of_a_method_together() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path();
+    let write = |name: &str, lines: &[String]| {
+        let run = dir.join(name);
+        std::fs::create_dir_all(&run).unwrap();
+        std::fs::write(run.join("metrics.jsonl"), lines.join("\n") + "\n").unwrap();
+        run
+    };
+    let mut runs = Vec::new();
+    for (seed, speed) in [(0, 1.0), (1, 1.5)] {
+        let mut lines = Vec::new();
+        for k in 0..=20 {
+            if k % 10 == 0 {
+                lines.push(validation_line(
+                    k,
+                    k as f64 / 25.0,
+                    speed * (60.0 + 10.0 * k as f64),
+                ));
+            }
+            lines.push(rl_line(k, speed * (61.0 + 10.0 * k as f64)));
+        }
+        // Resumed after episode 10: the last validation at 20 is the one that counts.
+        lines.push(validation_line(20, 0.9, speed * 500.0));
+        runs.push(write(&format!("fsrl-env1-invisible-s{seed}"), &lines));
+    }
+    runs.push(write(
+        "sarl-env1-invisible-s0",
+        &[
+            validation_line(0, 0.0, 30.0),
+            validation_line(10, 0.5, 400.0),
+        ],
+    ));
+    runs.push(write("old-run", &[rl_line(0, 1.0), rl_line(1, 2.0)]));
+    let out = dir.join("pics").join("c");
+    let mut args = vec!["plot", "curves"];
+    args.extend(runs.iter().map(|r| s(r)));
+    args.extend(["--out", s(&out)]);
+    let o = fsrl(&args);
+    let (stdout, stderr) = (
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr),
+    );
+    assert!(o.status.success(), "{stdout}\n{stderr}");
+    assert!(
+        stderr.contains("note: old-run has no validation lines"),
+        "{stderr}"
+    );
+    for (stem, axis) in [
+        ("c-validation-episodes", "RL episodes trained"),
+        ("c-validation-time", "wall-clock time (min)"),
+    ] {
+        assert!(stdout.contains(&format!("{stem}.png")), "{stdout}");
+        let v = svg(&dir.join("pics").join(format!("{stem}.svg")));
+        for word in [
+            axis,
+            "fsrl-env1-invisible (2 runs)",
+            "sarl-env1-invisible-s0",
+            "min–max",
+        ] {
+            assert!(v.text.contains(word), "missing {word} in {stem}");
+        }
+        assert!(!v.text.contains("old-run"), "{stem}");
+        // Two groups, three panels: at least a line per group and panel.
+        assert!(v.wide_polylines >= 2 * 3, "{stem}: {}", v.wide_polylines);
+        png(&dir.join("pics").join(format!("{stem}.png")), &v);
+    }
+    let all = svg(&dir.join("pics").join("c.svg"));
+    assert!(all.text.contains("old-run") && all.text.contains("fsrl-env1-invisible-s1"));
+
+    // Without any validation line: today's picture alone, and a note.
+    let o = fsrl(&["plot", "curves", s(&runs[3]), "--out", s(&dir.join("old"))]);
+    assert!(o.status.success());
+    assert!(String::from_utf8_lossy(&o.stderr).contains("no validation curves drawn"));
+    assert!(dir.join("old.svg").exists() && !dir.join("old-validation-time.svg").exists());
+    keep(&dir.join("pics"));
 }
 
 #[test]

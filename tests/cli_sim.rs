@@ -55,15 +55,40 @@ fn sim_prints_the_table_and_writes_a_valid_picture() {
     let text = std::fs::read_to_string(&svg).unwrap();
     let doc = roxmltree::Document::parse(&text).expect("the picture is well-formed XML");
     assert_eq!(doc.root_element().tag_name().name(), "svg");
-    let count = |tag: &str| doc.descendants().filter(|n| n.has_tag_name(tag)).count();
-    // Env 3: 5 dynamic humans and the robot each have a path.
-    assert_eq!(count("polyline"), 6, "paths");
-    let standing = doc
+    // viz's episode picture (as `fsrl plot episode` draws it): panels at a third, two thirds
+    // and the end of the episode.
+    let count = |tag: &str, attrs: &[(&str, &str)]| {
+        doc.descendants()
+            .filter(|n| {
+                n.has_tag_name(tag) && attrs.iter().all(|(k, v)| n.attribute(*k) == Some(*v))
+            })
+            .count()
+    };
+    let words: String = doc
         .descendants()
-        .filter(|n| n.has_tag_name("circle") && n.attribute("fill") == Some("#555"))
-        .count();
-    assert_eq!(standing, 5 + 1, "five standing humans plus the legend's");
-    assert!(text.contains("env3-visible · seed 1004"));
+        .filter(|n| n.has_tag_name("text"))
+        .filter_map(|n| n.text())
+        .collect();
+    assert_eq!(words.matches("t = ").count(), 3, "{words}");
+    // Env 3: in every panel the 5 dynamic humans have a path so far, the robot a bold one.
+    assert_eq!(
+        count("polyline", &[("opacity", "0.45")]),
+        3 * 5,
+        "human paths"
+    );
+    let robot_path = [("stroke", "#E67E22"), ("stroke-width", "3")];
+    assert_eq!(count("polyline", &robot_path), 3, "robot paths");
+    // Five standing humans per panel, plus the legend's square.
+    assert_eq!(
+        count("polygon", &[("fill", "#707070")]),
+        3 * 5,
+        "standing humans"
+    );
+    assert_eq!(count("rect", &[("fill", "#707070")]), 1, "legend");
+    assert!(
+        words.contains("ORCA robot on env3-visible, seed 1004"),
+        "{words}"
+    );
 }
 
 #[test]

@@ -594,3 +594,36 @@ fn the_systemd_units_start_each_role_with_a_deployed_config() {
         );
     }
 }
+
+/// The schedules and reward readings in `configs/` (and `docs/pictures.toml`) are valid run
+/// configs, and `configs/spec-literal.toml` really is SPEC §3's literal reward.
+#[test]
+fn every_config_in_configs_is_valid() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let mut files = files_with("toml", &root.join("configs"));
+    files.extend(files_with("toml", &root.join("configs/experiments")));
+    files.push(root.join("docs/pictures.toml"));
+    assert!(files.len() >= 6, "{files:?}");
+    for f in &files {
+        let o = fsrl(&["check-config", f.to_str().unwrap()]);
+        assert!(
+            o.status.success(),
+            "{}: {}",
+            f.display(),
+            String::from_utf8_lossy(&o.stderr)
+        );
+    }
+    let o = fsrl(&[
+        "check-config",
+        root.join("configs/spec-literal.toml").to_str().unwrap(),
+        "--print",
+    ]);
+    let printed = String::from_utf8_lossy(&o.stdout);
+    for line in [
+        "standing_alpha = 0.15",
+        "dynamic_beta = 0.5",
+        "dynamic_reading = \"after\"",
+    ] {
+        assert!(printed.contains(line), "{line} missing in:\n{printed}");
+    }
+}

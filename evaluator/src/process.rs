@@ -138,6 +138,104 @@ fn write(
     Ok(())
 }
 
+/// One point of the learning curve (see [`validate`]).
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct ValidationPoint {
+    pub phase: &'static str,
+    /// RL episodes trained.
+    pub episode: u64,
+    pub episodes: u32,
+    pub seed_start: u64,
+    pub success_rate: f64,
+    pub collision_rate: f64,
+    pub timeout_rate: f64,
+    pub discomfort: f64,
+    pub nav_time_s: Option<f64>,
+    pub mean_return: f64,
+    /// Seconds since the evaluator started.
+    pub wall_s: f64,
+}
+
+impl ValidationPoint {
+    /// The live metrics message of the point (names prefixed `validation_`).
+    pub fn metrics(&self, trained: u64) -> proto::Metrics {
+        let mut values = std::collections::BTreeMap::new();
+        for (k, v) in [
+            ("validation_episode", self.episode as f64),
+            ("validation_episodes", self.episodes as f64),
+            ("validation_success_rate", self.success_rate),
+            ("validation_collision_rate", self.collision_rate),
+            ("validation_timeout_rate", self.timeout_rate),
+            ("validation_discomfort", self.discomfort),
+            ("validation_mean_return", self.mean_return),
+        ] {
+            values.insert(k.to_string(), v);
+        }
+        if let Some(t) = self.nav_time_s {
+            values.insert("validation_nav_time_s".to_string(), t);
+        }
+        proto::Metrics {
+            env_steps: 0,
+            episodes: trained,
+            wall_time_s: self.wall_s,
+            values,
+        }
+    }
+}
+
+/// Scores `net` greedily on the validation seeds of the run's own setting.
+pub fn validate(
+    spec: &RunSpec,
+    net: &policy::ValueNet,
+    threads: usize,
+    trained: u64,
+    elapsed: Duration,
+) -> Result<ValidationPoint, ProcessError> {
+    let subject = Subject {
+        method: spec.method,
+        net: Some(net),
+        gamma: spec.train.gamma,
+        human_model: spec.train.human_model.into(),
+        orca_safety_space_m: 0.0,
+    };
+    let results = evaluate(
+        subject,
+        &spec.sim,
+        &[spec.setting],
+        spec.train.validation_seed_start,
+        spec.train.validation_episodes,
+        threads,
+    )?;
+    let a = &results[0].aggregate;
+    Ok(ValidationPoint {
+        phase: "validation",
+        episode: trained,
+        episodes: a.episodes,
+        seed_start: spec.train.validation_seed_start,
+        success_rate: a.success_rate(),
+        collision_rate: a.collision_rate(),
+        timeout_rate: a.timeout_rate(),
+        discomfort: a.discomfort(),
+        nav_time_s: a.nav_time_s(),
+        mean_return: a.mean_return(),
+        wall_s: elapsed.as_secs_f64(),
+    })
+}
+
+fn append_validation(opts: &EvaluatorOptions, p: &ValidationPoint) -> Result<(), ProcessError> {
+    use std::io::Write;
+    let path = opts.out_dir.join("validation.jsonl");
+    let err = |e: std::io::Error| ProcessError::Other(format!("writing {}: {e}", path.display()));
+    std::fs::create_dir_all(&opts.out_dir).map_err(err)?;
+    let line = serde_json::to_string(p).map_err(|e| ProcessError::Other(e.to_string()))?;
+    let mut f = std::fs::OpenOptions::new()
+        .create(true)
+        .append(true)
+        .open(&path)
+        .map_err(err)?;
+    writeln!(f, "{line}").map_err(err)
+}
+
 /// How the evaluator ended.
 #[derive(Debug, Clone, PartialEq)]
 pub enum EvaluatorExit {
@@ -161,9 +259,15 @@ pub fn run(
     let control = transport.latest_subscriber(&keys::control(&run))?;
     let reports = transport.publisher(&keys::eval_report(&run, transport.sender().index))?;
     let _token = transport.declare_alive()?;
+    let metrics = transport.publisher(&keys::metrics(&run, transport.sender()))?;
     let il_epochs = spec.train.imitation.epochs as u64;
     let mut next_due = opts.every_episodes;
     let mut evaluated: Option<u64> = None;
+    // The learning curve: the run's own setting on the validation seeds (never the test seeds).
+    let val_every = spec.train.validation_every_episodes;
+    let mut next_val_due = 0u64;
+    let mut validated: Option<u64> = None;
+    let started = std::time::Instant::now();
     loop {
         if stop.load(Ordering::SeqCst) {
             return Ok(EvaluatorExit::Stopped);
@@ -180,6 +284,22 @@ pub fn run(
         // Versions advance once per imitation epoch and once per RL episode.
         let trained = version.saturating_sub(il_epochs);
         let due = opts.every_episodes > 0 && trained >= next_due && evaluated != Some(version);
+        // Imitation bumps the version once per epoch: a validation point needs RL weights.
+        let val_due = val_every > 0
+            && spec.train.validation_episodes > 0
+            && version >= il_epochs
+            && validated != Some(version)
+            && (trained >= next_val_due || finished);
+        if val_due {
+            let net = net_from_weights(&w.body, &net_cfg).map_err(ProcessError::Other)?;
+            let point = validate(spec, &net, opts.threads, trained, started.elapsed())?;
+            append_validation(opts, &point)?;
+            metrics.publish(version, &point.metrics(trained))?;
+            validated = Some(version);
+            while next_val_due <= trained {
+                next_val_due += val_every;
+            }
+        }
         if !(finished || due) {
             let _ = weights.next(Duration::from_millis(200))?;
             continue;

@@ -2,11 +2,11 @@
 //! state, counters, the sampling generator, the resolved configs, and the replay memory. They
 //! load back bit-exact; a truncated, corrupt or mismatched file is a clear error, never a panic.
 //!
-//! File layout: `b"FSRLCKPT"`, format version (u32 LE), payload length (u64 LE), payload
-//! (MessagePack, field names included), CRC-32 of the payload (u32 LE). Files are written to a
-//! temporary name, synced and renamed, so a crash never leaves a half-written checkpoint.
+//! File layout (`frame.rs`): `b"FSRLCKPT"`, format version (u32 LE), payload length
+//! (u64 LE), payload (MessagePack, field names included), CRC-32 of the payload (u32 LE). Files
+//! are written to a temporary name, synced and renamed, so a crash never leaves a half-written
+//! checkpoint.
 
-use std::io::Write;
 use std::path::{Path, PathBuf};
 
 use rand::SeedableRng;
@@ -21,12 +21,12 @@ use policy::ValueNet;
 use sim::SimConfig;
 
 use crate::core::{Counters, LearnerCore};
+use crate::frame::{self, FrameError};
 use crate::replay::{Columns, Replay};
 
-const MAGIC: &[u8; 8] = b"FSRLCKPT";
+pub(crate) const MAGIC: &[u8; 8] = b"FSRLCKPT";
 /// Bumped whenever the payload changes incompatibly.
 pub const FORMAT_VERSION: u32 = 1;
-const HEADER: usize = 8 + 4 + 8;
 
 /// Why a checkpoint could not be written or read.
 #[derive(Debug, thiserror::Error)]
@@ -76,9 +76,10 @@ pub struct Loaded {
     pub run: RunInfo,
 }
 
+/// A network's description as checkpoints and model files write it.
 #[derive(Serialize, Deserialize)]
 #[serde(tag = "kind", rename_all = "kebab-case")]
-enum NetDesc {
+pub(crate) enum NetDesc {
     Sarl {
         mlp1: Vec<usize>,
         mlp2: Vec<usize>,
@@ -130,7 +131,7 @@ impl From<NetDesc> for NetConfig {
     }
 }
 
-fn to_bytes(v: &[f32]) -> Vec<u8> {
+pub(crate) fn to_bytes(v: &[f32]) -> Vec<u8> {
     let mut out = Vec::with_capacity(v.len() * 4);
     for x in v {
         out.extend_from_slice(&x.to_le_bytes());
@@ -138,7 +139,7 @@ fn to_bytes(v: &[f32]) -> Vec<u8> {
     out
 }
 
-fn from_bytes(b: &[u8], what: &str) -> Result<Vec<f32>, String> {
+pub(crate) fn from_bytes(b: &[u8], what: &str) -> Result<Vec<f32>, String> {
     if !b.len().is_multiple_of(4) {
         return Err(format!(
             "{what}: {} bytes is not a whole number of f32",
@@ -164,13 +165,39 @@ struct AdamRec {
 }
 
 #[derive(Serialize, Deserialize)]
-struct CountersRec {
+pub(crate) struct CountersRec {
     demo_episodes: u64,
     imitation_done: bool,
     rl_episodes: u64,
     updates: u64,
     env_steps: u64,
     policy_version: u64,
+}
+
+impl From<Counters> for CountersRec {
+    fn from(c: Counters) -> Self {
+        Self {
+            demo_episodes: c.demo_episodes,
+            imitation_done: c.imitation_done,
+            rl_episodes: c.rl_episodes,
+            updates: c.updates,
+            env_steps: c.env_steps,
+            policy_version: c.policy_version,
+        }
+    }
+}
+
+impl From<CountersRec> for Counters {
+    fn from(c: CountersRec) -> Self {
+        Self {
+            demo_episodes: c.demo_episodes,
+            imitation_done: c.imitation_done,
+            rl_episodes: c.rl_episodes,
+            updates: c.updates,
+            env_steps: c.env_steps,
+            policy_version: c.policy_version,
+        }
+    }
 }
 
 #[derive(Serialize, Deserialize)]
@@ -222,10 +249,6 @@ pub fn save(
     sim: &SimConfig,
     run: &RunInfo,
 ) -> Result<(), CheckpointError> {
-    let io = |source| CheckpointError::Io {
-        path: path.to_path_buf(),
-        source,
-    };
     let t = core.trainer();
     let adam = t.adam();
     let cfg = adam.config();
@@ -248,14 +271,7 @@ pub fn save(
             m: to_bytes(adam.m()),
             v: to_bytes(adam.v()),
         },
-        counters: CountersRec {
-            demo_episodes: c.demo_episodes,
-            imitation_done: c.imitation_done,
-            rl_episodes: c.rl_episodes,
-            updates: c.updates,
-            env_steps: c.env_steps,
-            policy_version: c.policy_version,
-        },
+        counters: c.into(),
         rng: RngRec {
             seed: rng.get_seed(),
             stream: rng.get_stream(),
@@ -279,19 +295,14 @@ pub fn save(
         path: path.to_path_buf(),
         reason: e.to_string(),
     })?;
-    let tmp = path.with_extension("tmp");
-    {
-        let mut f = std::fs::File::create(&tmp).map_err(io)?;
-        f.write_all(MAGIC).map_err(io)?;
-        f.write_all(&FORMAT_VERSION.to_le_bytes()).map_err(io)?;
-        f.write_all(&(body.len() as u64).to_le_bytes())
-            .map_err(io)?;
-        f.write_all(&body).map_err(io)?;
-        f.write_all(&crc32fast::hash(&body).to_le_bytes())
-            .map_err(io)?;
-        f.sync_all().map_err(io)?;
-    }
-    std::fs::rename(&tmp, path).map_err(io)
+    frame::write_atomic(
+        path,
+        &path.with_extension("tmp"),
+        MAGIC,
+        FORMAT_VERSION,
+        &body,
+    )
+    .map_err(|(path, source)| CheckpointError::Io { path, source })
 }
 
 /// Reads a checkpoint written by [`save`].
@@ -305,38 +316,20 @@ pub fn load(path: &Path) -> Result<Loaded, CheckpointError> {
 
 fn decode(path: &Path, bytes: &[u8]) -> Result<Loaded, CheckpointError> {
     let p = || path.to_path_buf();
-    if bytes.len() < 8 || &bytes[..8] != MAGIC {
-        return Err(CheckpointError::NotACheckpoint(p()));
-    }
-    if bytes.len() < HEADER {
-        return Err(CheckpointError::Truncated {
+    let body = frame::open(bytes, MAGIC, FORMAT_VERSION).map_err(|e| match e {
+        FrameError::BadMagic => CheckpointError::NotACheckpoint(p()),
+        FrameError::Version(found) => CheckpointError::Version {
             path: p(),
-            got: bytes.len() as u64,
-            expected: HEADER as u64,
-        });
-    }
-    let version = u32::from_le_bytes(bytes[8..12].try_into().expect("4 bytes"));
-    if version != FORMAT_VERSION {
-        return Err(CheckpointError::Version {
-            path: p(),
-            found: version,
+            found,
             expected: FORMAT_VERSION,
-        });
-    }
-    let len = u64::from_le_bytes(bytes[12..20].try_into().expect("8 bytes"));
-    let expected = (HEADER as u64).saturating_add(len).saturating_add(4);
-    if bytes.len() as u64 != expected {
-        return Err(CheckpointError::Truncated {
+        },
+        FrameError::Truncated { got, expected } => CheckpointError::Truncated {
             path: p(),
-            got: bytes.len() as u64,
+            got,
             expected,
-        });
-    }
-    let body = &bytes[HEADER..HEADER + len as usize];
-    let crc = u32::from_le_bytes(bytes[HEADER + len as usize..].try_into().expect("4 bytes"));
-    if crc32fast::hash(body) != crc {
-        return Err(CheckpointError::Corrupt(p()));
-    }
+        },
+        FrameError::Corrupt => CheckpointError::Corrupt(p()),
+    })?;
     let payload: Payload = rmp_serde::from_slice(body).map_err(|e| CheckpointError::Decode {
         path: p(),
         reason: e.to_string(),
@@ -388,15 +381,7 @@ fn rebuild(pl: Payload) -> Result<Loaded, String> {
     let mut rng = ChaCha8Rng::from_seed(pl.rng.seed);
     rng.set_stream(pl.rng.stream);
     rng.set_word_pos(((pl.rng.word_pos_hi as u128) << 64) | pl.rng.word_pos_lo as u128);
-    let c = pl.counters;
-    let counters = Counters {
-        demo_episodes: c.demo_episodes,
-        imitation_done: c.imitation_done,
-        rl_episodes: c.rl_episodes,
-        updates: c.updates,
-        env_steps: c.env_steps,
-        policy_version: c.policy_version,
-    };
+    let counters = Counters::from(pl.counters);
     let problems = pl.train.problems();
     if !problems.is_empty() {
         return Err(format!("training config: {}", problems.join("; ")));

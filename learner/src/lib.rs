@@ -1,10 +1,13 @@
 //! `learner`: the learner role. [`core::LearnerCore`] holds replay, trainer, schedule and
 //! counters with no transport attached, so the same code trains in one process (`fsrl train
-//! --single-process`) and behind the wire; [`checkpoint`] saves and restores all of it.
+//! --single-process`) and behind the wire; [`checkpoint`] saves and restores all of it;
+//! [`model`] keeps only the trained policy, to ship (`.fsrlm` files).
 
 pub mod checkpoint;
 pub mod core;
+mod frame;
 pub mod imitation;
+pub mod model;
 pub mod process;
 pub mod replay;
 pub mod wal;

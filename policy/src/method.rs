@@ -228,6 +228,13 @@ pub struct TrainConfig {
     /// Test episodes per setting when evaluating (seeds from `test_seed_start`).
     pub eval_episodes: u32,
     pub test_seed_start: u64,
+    /// Score the greedy policy on the validation seeds every N RL episodes (0: never): the
+    /// learning curve in `metrics.jsonl` (lines with `phase = "validation"`).
+    pub validation_every_episodes: u64,
+    /// Episodes of each validation, seeds `validation_seed_start..` in the run's setting.
+    pub validation_episodes: u32,
+    /// First validation seed (CrowdNav: 0..99, disjoint from test 1000.. and training seeds).
+    pub validation_seed_start: u64,
 }
 
 impl Default for TrainConfig {
@@ -240,6 +247,9 @@ impl Default for TrainConfig {
             checkpoint_every_episodes: 1000,
             eval_episodes: 500,
             test_seed_start: 1000,
+            validation_every_episodes: 500,
+            validation_episodes: 100,
+            validation_seed_start: 0,
         }
     }
 }
@@ -285,6 +295,17 @@ impl TrainConfig {
         }
         if self.eval_episodes == 0 {
             p.push("train.eval_episodes must be at least 1".into());
+        }
+        let (v0, t0) = (self.validation_seed_start, self.test_seed_start);
+        let (v1, t1) = (
+            v0.saturating_add(self.validation_episodes as u64),
+            t0.saturating_add(self.eval_episodes as u64),
+        );
+        if self.validation_every_episodes > 0 && self.validation_episodes > 0 && v0 < t1 && t0 < v1
+        {
+            p.push(format!(
+                "train.validation seeds {v0}..{v1} overlap the test seeds {t0}..{t1}: validation must not see test episodes"
+            ));
         }
         p
     }

@@ -327,6 +327,28 @@ impl Default for ActionConfig {
     }
 }
 
+/// Which closest distance R_dy (paper eq. 7) reads. The paper's text says "the minimum distance
+/// … after ΔT_dy"; its Fig. 2(c) keeps the comfort distance "within ΔT_dy".
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum DynamicReading {
+    /// SPEC §3 literally: the distance at exactly t + ΔT_dy (a snapshot; blind to passing
+    /// through a human before ΔT_dy).
+    #[default]
+    After,
+    /// The swept minimum over [t, t + ΔT_dy] (as R_st already reads its horizon).
+    Within,
+}
+
+impl DynamicReading {
+    pub fn name(self) -> &'static str {
+        match self {
+            DynamicReading::After => "after",
+            DynamicReading::Within => "within",
+        }
+    }
+}
+
 /// The FSRL reward (SPEC §3, paper eq. 4–9).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
@@ -341,12 +363,16 @@ pub struct RewardConfig {
     pub effective_range_m: f64,
     /// ΔT_st of R_st.
     pub standing_horizon_s: f64,
-    /// α of R_st.
+    /// α of R_st per step. Default 0.15·dt = 0.0375: the paper's α = 0.15 scaled by the step
+    /// (dt = 0.25 s) as R_c's discomfort term is; SPEC's literal per-step 0.15 is
+    /// `configs/spec-literal.toml` (the experiment behind the choice: `docs/REPRODUCTION.md`).
     pub standing_alpha: f64,
     /// ΔT_dy of R_dy.
     pub dynamic_horizon_s: f64,
-    /// β of R_dy.
+    /// β of R_dy per step. Default 0.5·dt = 0.125 (see `standing_alpha`); SPEC literal 0.5.
     pub dynamic_beta: f64,
+    /// Which distance R_dy penalises (the paper is ambiguous; see `docs/REPRODUCTION.md`).
+    pub dynamic_reading: DynamicReading,
     /// R_t on reaching the goal is −factor·t/t_limit.
     pub time_goal_factor: f64,
     /// R_t on timeout.
@@ -366,9 +392,10 @@ impl Default for RewardConfig {
             discomfort_slope_per_m: 0.125,
             effective_range_m: 2.0,
             standing_horizon_s: 2.0,
-            standing_alpha: 0.15,
+            standing_alpha: 0.15 * 0.25,
             dynamic_horizon_s: 1.0,
-            dynamic_beta: 0.5,
+            dynamic_beta: 0.5 * 0.25,
+            dynamic_reading: DynamicReading::default(),
             time_goal_factor: 0.1,
             timeout_penalty: -0.2,
             foresight: true,

@@ -31,7 +31,7 @@ pub mod robot;
 pub mod scenario;
 pub mod scenes;
 
-pub use config::{ConfigError, EnvKind, Kinematics, Semantics, Setting, SimConfig};
+pub use config::{ConfigError, DynamicReading, EnvKind, Kinematics, Semantics, Setting, SimConfig};
 pub use env::{Env, EnvError, RobotCommand, StepInfo};
 pub use episode::{run_episode, run_episode_with, Aggregate, Episode, EpisodeSummary, Frame};
 pub use geom::Vec2;

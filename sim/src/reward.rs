@@ -3,7 +3,7 @@
 //! one-step lookahead both call [`evaluate_step`], so the reward a policy plans with is the very
 //! reward the simulator pays.
 
-use crate::config::{Semantics, SimConfig};
+use crate::config::{DynamicReading, Semantics, SimConfig};
 use crate::geom::{closest_approach, Vec2};
 use crate::robot::{Action, RobotState};
 use crate::scenario::HumanState;
@@ -303,9 +303,10 @@ pub fn standing_penalty(
     }
 }
 
-/// R_dy = β·(d − r_c) when d < r_c, where d is the smallest boundary distance after ΔT_dy to the
-/// dynamic humans within r_e, the robot holding `robot_velocity` and the humans their current
-/// velocities.
+/// R_dy = β·(d − r_c) when d < r_c, where d is the smallest boundary distance to the dynamic
+/// humans within r_e, the robot holding `robot_velocity` and the humans their current velocities:
+/// at exactly t + ΔT_dy ([`DynamicReading::After`]) or swept over [t, t + ΔT_dy]
+/// ([`DynamicReading::Within`]).
 pub fn dynamic_penalty(
     cfg: &SimConfig,
     robot: &RobotState,
@@ -320,8 +321,15 @@ pub fn dynamic_penalty(
         if (h.position - robot.position).norm() > w.effective_range_m {
             continue;
         }
-        let human_future = h.position + h.velocity * horizon;
-        d = d.min((human_future - robot_future).norm() - h.radius_m - robot.radius_m);
+        let centre_m = match w.dynamic_reading {
+            DynamicReading::After => (h.position + h.velocity * horizon - robot_future).norm(),
+            DynamicReading::Within => closest_approach(
+                h.position - robot.position,
+                h.velocity - robot_velocity,
+                horizon,
+            ),
+        };
+        d = d.min(centre_m - h.radius_m - robot.radius_m);
     }
     if d < w.comfort_dist_m {
         w.dynamic_beta * (d - w.comfort_dist_m)

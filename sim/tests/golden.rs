@@ -4,8 +4,8 @@
 use sim::config::ActionConfig;
 use sim::reward::{dynamic_penalty, standing_penalty};
 use sim::{
-    evaluate_step, run_episode, Action, Env, EnvError, HumanState, Outcome, RobotState, Scenario,
-    Setting, SimConfig, Vec2,
+    evaluate_step, run_episode, Action, DynamicReading, Env, EnvError, HumanState, Outcome,
+    RobotState, Scenario, Setting, SimConfig, Vec2,
 };
 
 const EPS: f64 = 1e-9;
@@ -145,7 +145,11 @@ fn discomfort_term_of_r_c() {
 
 #[test]
 fn foresight_terms_by_hand() {
+    // SPEC §3's literal weights (the defaults are these times dt, docs/REPRODUCTION.md).
     let mut cfg = SimConfig::default();
+    cfg.reward.dynamic_reading = DynamicReading::After;
+    cfg.reward.standing_alpha = 0.15;
+    cfg.reward.dynamic_beta = 0.5;
     let robot = robot_at(0.0, 0.0);
     let ahead = Action {
         speed_mps: 1.0,
@@ -188,6 +192,47 @@ fn foresight_terms_by_hand() {
     assert_eq!(stop.reward.dynamic, 0.0);
     // Without standing humans in range R_st is 0, not NaN.
     assert_eq!(standing_penalty(&cfg, &robot, v, &humans[3..]), 0.0);
+}
+
+/// The two readings of R_dy on an oncoming human 1.2 m ahead walking at the robot at 1 m/s.
+/// Driving through at full speed: the snapshot after 1 s sees the human 0.8 m behind (boundary
+/// 0.2 m, no penalty) while the swept minimum sees the overlap (−0.6 m: 0.5·(−0.8) = −0.4).
+/// Stopping: both see the human arrive 0.2 m away (boundary −0.4 m: −0.3).
+#[test]
+fn dynamic_readings_on_an_oncoming_human() {
+    let mut cfg = SimConfig::default();
+    cfg.reward.dynamic_beta = 0.5;
+    let robot = robot_at(0.0, 0.0);
+    let ahead = Action {
+        speed_mps: 1.0,
+        rotation_rad: 0.0,
+    };
+    let mut h = human(0.0, 1.2, 0.0, -4.0, false);
+    h.velocity = Vec2::new(0.0, -1.0);
+    let humans = [h];
+    let through = robot.commanded_velocity(ahead);
+    let stop = Vec2::zeros();
+    cfg.reward.dynamic_reading = DynamicReading::After;
+    assert_eq!(dynamic_penalty(&cfg, &robot, through, &humans), 0.0);
+    assert!((dynamic_penalty(&cfg, &robot, stop, &humans) + 0.3).abs() < 1e-12);
+    cfg.reward.dynamic_reading = DynamicReading::Within;
+    assert!((dynamic_penalty(&cfg, &robot, through, &humans) + 0.4).abs() < 1e-12);
+    assert!((dynamic_penalty(&cfg, &robot, stop, &humans) + 0.3).abs() < 1e-12);
+    // β scales the term linearly: the default is β·dt = 0.5·0.25.
+    cfg.reward.dynamic_beta = SimConfig::default().reward.dynamic_beta;
+    assert_eq!(cfg.reward.dynamic_beta, 0.125);
+    assert!((dynamic_penalty(&cfg, &robot, through, &humans) + 0.1).abs() < 1e-12);
+}
+
+/// The defaults are the reading chosen by experiment (docs/REPRODUCTION.md): R_dy at t + ΔT_dy,
+/// both foresight weights per step times dt; `configs/spec-literal.toml` restores SPEC's.
+#[test]
+fn default_foresight_weights_are_the_papers_times_dt() {
+    let w = SimConfig::default().reward;
+    assert_eq!(w.dynamic_reading, DynamicReading::After);
+    assert_eq!(w.standing_alpha, 0.15 * 0.25);
+    assert_eq!(w.dynamic_beta, 0.5 * 0.25);
+    assert_eq!(w.standing_alpha, 0.0375);
 }
 
 #[test]

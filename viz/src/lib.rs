@@ -4,6 +4,8 @@
 //! - [`OutcomeBars`]: success / collision / timeout rates per setting and method (paper Fig. 5);
 //! - [`LearningCurves`]: success rate, return and loss against RL episodes (from `metrics.jsonl`,
 //!   read by [`metrics::read_metrics`]);
+//! - [`ValidationCurves`]: the validation success rate, collision rate and Disc. against RL
+//!   episodes or wall-clock minutes, the seeds of one method as a mean line and a min–max band;
 //! - [`Ablation`]: the reward ablation R_c, +R_f, +R_t, all (paper Fig. 8–9);
 //! - [`Trajectory`]: an episode with the attention weight of every human at chosen times (paper
 //!   Fig. 7), and [`save_gif`], the same episode animated.
@@ -28,7 +30,10 @@ use plotters::prelude::*;
 
 pub use ablation::Ablation;
 pub use bars::{OutcomeBars, OutcomeCell};
-pub use curves::{CurveRun, LearningCurves};
+pub use curves::{
+    group_runs, spread, without_seed, CurveGroup, CurveRun, LearningCurves, Spread, ValidationAxis,
+    ValidationCurves,
+};
 pub use episode::{save_gif, EpisodeTrace, HumanInfo, TraceFrame, Trajectory, GIF_HOLD_FRAMES};
 
 /// Why a picture could not be made.

@@ -4,10 +4,11 @@
 use std::collections::HashSet;
 use std::path::{Path, PathBuf};
 
-use viz::metrics::{ImitationPoint, Metrics, RlPoint};
+use viz::metrics::{ImitationPoint, Metrics, RlPoint, ValidationPoint};
 use viz::{
-    save, save_gif, Ablation, CurveRun, EpisodeTrace, HumanInfo, Interval, LearningCurves,
-    OutcomeBars, OutcomeCell, TraceFrame, Trajectory,
+    group_runs, save, save_gif, Ablation, CurveRun, EpisodeTrace, HumanInfo, Interval,
+    LearningCurves, OutcomeBars, OutcomeCell, TraceFrame, Trajectory, ValidationAxis,
+    ValidationCurves,
 };
 
 fn out_dir() -> (Option<tempfile::TempDir>, PathBuf) {
@@ -143,6 +144,25 @@ fn metrics(n: u64, offset: f64) -> Metrics {
                 wall_s: k as f64,
             })
             .collect(),
+        validation: (0..=n / 50)
+            .map(|v| {
+                let success = (v as f64 * 50.0 / n as f64 + offset).min(1.0);
+                ValidationPoint {
+                    episode: 50 * v,
+                    success_rate: success,
+                    collision_rate: 1.0 - success,
+                    timeout_rate: 0.0,
+                    discomfort: 0.2 - 0.1 * success,
+                    nav_time_s: Some(12.0),
+                    mean_return: Some(0.2),
+                    episodes: 100,
+                    seed_start: 0,
+                    policy_version: 50 * v,
+                    env_steps: 2000 * v,
+                    wall_s: 30.0 + 50.0 * v as f64 * (1.0 + offset),
+                }
+            })
+            .collect(),
     }
 }
 
@@ -176,6 +196,54 @@ fn learning_curves_draw_one_line_per_run_and_panel() {
         assert!(text.contains(word), "missing {word}");
     }
     check_png(&files[1], viz::Figure::size(&fig));
+}
+
+#[test]
+fn validation_curves_render_against_episodes_and_wall_clock() {
+    let (_keep, dir) = out_dir();
+    let run = |label: &str, n: u64, offset: f64| CurveRun {
+        label: label.into(),
+        metrics: metrics(n, offset),
+    };
+    let groups = group_runs(vec![
+        run("fsrl-env1-invisible-s0", 300, 0.1),
+        run("fsrl-env1-invisible-s1", 250, 0.05),
+        run("sarl-env1-invisible-s0", 300, 0.0),
+    ]);
+    assert_eq!(groups.len(), 2);
+    for (axis, stem, word) in [
+        (
+            ValidationAxis::Episodes,
+            "validation-episodes",
+            "RL episodes trained",
+        ),
+        (
+            ValidationAxis::WallClock,
+            "validation-time",
+            "wall-clock time (min)",
+        ),
+    ] {
+        let fig = ValidationCurves {
+            title: "Validation".into(),
+            groups: groups.clone(),
+            axis,
+        };
+        let files = save(&fig, &dir.join(stem)).unwrap();
+        let (w, h, _, polylines, text) = svg_facts(&files[0]);
+        assert_eq!((w as u32, h as u32), viz::Figure::size(&fig));
+        // At least one mean line per group and panel (the shorter seed adds dashes).
+        assert!(polylines >= 2 * 3, "{polylines}");
+        for word in [
+            word,
+            "fsrl-env1-invisible (2 runs)",
+            "sarl-env1-invisible-s0",
+            "validation success rate",
+            "seeds 0–99",
+        ] {
+            assert!(text.contains(word), "missing {word}");
+        }
+        check_png(&files[1], viz::Figure::size(&fig));
+    }
 }
 
 #[test]

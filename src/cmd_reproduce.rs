@@ -1,0 +1,1201 @@
+//! `fsrl reproduce`: the paper's grid in one command. Trains methods × settings × seeds (each
+//! run in its own setting, as the paper does), exports every finished run as a model file,
+//! evaluates each model on the test seeds of its setting and ORCA on all six, and writes one
+//! report beside the paper's numbers (`fsrl compare`, in this process).
+//!
+//! Every step is a child process of this same executable (`fsrl train --single-process`,
+//! `fsrl export-model`, `fsrl eval`); this module only decides what to run. A run directory
+//! with `report.json` is finished, one with `checkpoints/latest.ckpt` alone is resumed, any other
+//! is removed and started again; a model at least as new as its run's `report.json` and an
+//! `eval.json` at least as new as its model (same episodes, same setting) are kept. Running the
+//! same command again therefore goes on where it stopped.
+
+use std::ffi::OsString;
+use std::fmt::Write as _;
+use std::os::unix::process::CommandExt as _;
+use std::path::{Path, PathBuf};
+use std::process::{Command, ExitStatus, Stdio};
+use std::sync::atomic::{AtomicU32, Ordering};
+use std::sync::Arc;
+use std::time::{Duration, Instant, SystemTime};
+
+use anyhow::{bail, Context};
+use policy::method::{Method, TrainConfig};
+use sim::Setting;
+
+use crate::cmd_compare::{self, CompareArgs};
+use crate::config::{run_name, FileConfig};
+use crate::report::{EvalReport, EVAL_KIND};
+
+#[derive(Debug, clap::Args)]
+pub struct ReproduceArgs {
+    /// Run configuration of every run ([train] schedule, [sim] simulator)
+    #[arg(long, default_value = "configs/fast.toml")]
+    pub config: PathBuf,
+    /// Methods to train, comma-separated, run in this order
+    #[arg(long, value_delimiter = ',', default_values = ["lstm-rl", "sarl", "fsrl"])]
+    pub methods: Vec<String>,
+    /// Settings, comma-separated, in this order; each run is trained and evaluated in its own
+    /// setting [default: all six]
+    #[arg(long, value_delimiter = ',')]
+    pub settings: Vec<String>,
+    /// Run seeds, comma-separated, in this order
+    #[arg(long, value_delimiter = ',', default_values_t = [0u64, 1, 2])]
+    pub seeds: Vec<u64>,
+    /// Run directories: RUNS/<method>-<setting>-s<seed>; evaluations in RUNS/eval/
+    #[arg(long, default_value = "runs/reproduce")]
+    pub runs: PathBuf,
+    /// Model files: MODELS/<method>-<setting>-s<seed>.fsrlm
+    #[arg(long, default_value = "models")]
+    pub models: PathBuf,
+    /// Test episodes of each evaluation (seeds from 1000)
+    #[arg(long, default_value_t = 500)]
+    pub episodes: u32,
+    /// Report directory (compare.md, compare.csv, compare.json) [default: RUNS/report]
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+    /// Print the plan (finished, to resume, to train) and the estimated time; run nothing
+    #[arg(long)]
+    pub dry_run: bool,
+    /// Train nothing: export, evaluate and report the runs that are finished
+    #[arg(long)]
+    pub no_train: bool,
+}
+
+// ---------------------------------------------------------------------------------------------
+// The grid.
+
+/// What the command line asks for, validated.
+pub struct Grid {
+    pub file: FileConfig,
+    pub methods: Vec<Method>,
+    pub settings: Vec<Setting>,
+    pub seeds: Vec<u64>,
+}
+
+/// Reads the config and checks every name and number before anything starts, all problems
+/// reported together.
+pub fn grid(args: &ReproduceArgs) -> anyhow::Result<Grid> {
+    let file = FileConfig::load(Some(&args.config))?;
+    let mut problems = Vec::new();
+    let mut methods = Vec::new();
+    for name in &args.methods {
+        match name.parse::<Method>() {
+            Ok(Method::Orca) => problems.push(
+                "--methods: orca is not trained (its row is always in the report)".to_string(),
+            ),
+            Ok(m) if methods.contains(&m) => problems.push(format!("--methods lists {m} twice")),
+            Ok(m) => methods.push(m),
+            Err(e) => problems.push(format!("--methods: {e}")),
+        }
+    }
+    let names: Vec<String> = if args.settings.is_empty() {
+        Setting::ALL.iter().map(|s| s.name().to_string()).collect()
+    } else {
+        args.settings.clone()
+    };
+    let settings = match file.sim.resolve_settings(&names) {
+        Ok(s) => s,
+        Err(e) => {
+            problems.extend(e.problems);
+            Vec::new()
+        }
+    };
+    for (i, s) in settings.iter().enumerate() {
+        if settings[..i].contains(s) {
+            problems.push(format!("--settings lists {s} twice"));
+        }
+    }
+    for (i, s) in args.seeds.iter().enumerate() {
+        if args.seeds[..i].contains(s) {
+            problems.push(format!("--seeds lists {s} twice"));
+        }
+    }
+    if args.methods.is_empty() || args.seeds.is_empty() {
+        problems.push("--methods and --seeds must name at least one each".into());
+    }
+    if args.episodes == 0 {
+        problems.push("--episodes must be at least 1".into());
+    }
+    // The rest of the file (schedule, run id, ...), checked as `fsrl train` will check it.
+    let mut probe = file.clone();
+    probe.run.method = Method::Sarl.name().into();
+    probe.run.setting = Setting::ALL[0].name().into();
+    if let Err(e) = probe.resolve(Vec::new()) {
+        for p in e.problems {
+            if !problems.contains(&p) {
+                problems.push(p);
+            }
+        }
+    }
+    if !problems.is_empty() {
+        return Err(sim::ConfigError { problems }.into());
+    }
+    Ok(Grid {
+        file,
+        methods,
+        settings,
+        seeds: args.seeds.clone(),
+    })
+}
+
+/// One run of the grid.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Cell {
+    pub method: Method,
+    pub setting: Setting,
+    pub seed: u64,
+}
+
+/// The grid in the order it is run: seed-major, then setting, then method, each list in the
+/// order given (so the first seed covers the whole grid before the second starts).
+pub fn cells(methods: &[Method], settings: &[Setting], seeds: &[u64]) -> Vec<Cell> {
+    let mut out = Vec::with_capacity(methods.len() * settings.len() * seeds.len());
+    for &seed in seeds {
+        for &setting in settings {
+            for &method in methods {
+                out.push(Cell {
+                    method,
+                    setting,
+                    seed,
+                });
+            }
+        }
+    }
+    out
+}
+
+/// Where everything goes.
+pub struct Layout {
+    pub runs: PathBuf,
+    pub models: PathBuf,
+}
+
+impl Layout {
+    pub fn run_dir(&self, name: &str) -> PathBuf {
+        self.runs.join(name)
+    }
+
+    pub fn model(&self, name: &str) -> PathBuf {
+        self.models.join(format!("{name}.fsrlm"))
+    }
+
+    pub fn eval_dir(&self, name: &str) -> PathBuf {
+        self.runs.join("eval").join(name)
+    }
+
+    pub fn orca_eval_dir(&self) -> PathBuf {
+        self.runs.join("eval").join("orca")
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// What is done already.
+
+/// Where a run's training stands.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Training {
+    /// `report.json` exists.
+    Finished,
+    /// Interrupted: `checkpoints/latest.ckpt` without `report.json` (the first checkpoint is
+    /// written after imitation, so only RL is left).
+    Resume {
+        rl_done: u64,
+    },
+    /// A directory with neither (stopped during imitation): removed and started again.
+    Restart,
+    New,
+}
+
+impl Training {
+    pub fn of(run_dir: &Path) -> Training {
+        if run_dir.join("report.json").is_file() {
+            Training::Finished
+        } else if run_dir.join("checkpoints").join("latest.ckpt").is_file() {
+            Training::Resume {
+                rl_done: rl_done(&run_dir.join("metrics.jsonl")),
+            }
+        } else if run_dir.exists() {
+            Training::Restart
+        } else {
+            Training::New
+        }
+    }
+
+    fn text(self) -> String {
+        match self {
+            Training::Finished => "finished".into(),
+            Training::Resume { rl_done } => format!("resume ({rl_done} RL ep. done)"),
+            Training::Restart => "restart".into(),
+            Training::New => "new".into(),
+        }
+    }
+}
+
+/// RL episodes logged in a metrics file (the last `phase = "rl"` line's episode + 1).
+fn rl_done(metrics: &Path) -> u64 {
+    let text = std::fs::read_to_string(metrics).unwrap_or_default();
+    text.lines()
+        .rev()
+        .filter_map(|l| serde_json::from_str::<serde_json::Value>(l).ok())
+        .find(|v| v["phase"] == "rl")
+        .and_then(|v| v["episode"].as_u64())
+        .map_or(0, |e| e + 1)
+}
+
+/// The modification time of a file (`None` for a directory or nothing).
+fn modified(path: &Path) -> Option<SystemTime> {
+    std::fs::metadata(path)
+        .ok()
+        .filter(|m| m.is_file())
+        .and_then(|m| m.modified().ok())
+}
+
+/// A model file at least as new as its run's `report.json`.
+pub fn model_is_current(model: &Path, run_dir: &Path) -> bool {
+    match (modified(model), modified(&run_dir.join("report.json"))) {
+        (Some(m), Some(r)) => m >= r,
+        _ => false,
+    }
+}
+
+/// An `eval.json` in `dir` of one policy on `settings` with `episodes` test episodes each, at
+/// least as new as `source` (the model evaluated) when given.
+pub fn eval_is_current(
+    dir: &Path,
+    settings: &[Setting],
+    episodes: u32,
+    source: Option<&Path>,
+) -> bool {
+    let path = dir.join("eval.json");
+    let Some(written) = modified(&path) else {
+        return false;
+    };
+    if let Some(source) = source {
+        if modified(source).is_none_or(|s| written < s) {
+            return false;
+        }
+    }
+    let Some(report) = std::fs::read_to_string(&path)
+        .ok()
+        .and_then(|t| serde_json::from_str::<EvalReport>(&t).ok())
+    else {
+        return false;
+    };
+    report.kind == EVAL_KIND
+        && report.episodes_per_setting == episodes
+        && report.subjects.len() == 1
+        && settings
+            .iter()
+            .all(|&s| report.subjects[0].setting(s).is_some())
+}
+
+/// One run and what it still needs.
+#[derive(Debug, Clone)]
+pub struct Planned {
+    pub cell: Cell,
+    pub name: String,
+    pub run_dir: PathBuf,
+    pub model: PathBuf,
+    pub eval_dir: PathBuf,
+    pub training: Training,
+    pub export: bool,
+    pub eval: bool,
+    /// Trained (or being trained) with another `[sim]` or `[train]` than the config file's.
+    pub config_differs: bool,
+}
+
+impl Planned {
+    pub fn new(cell: Cell, layout: &Layout, file: &FileConfig, episodes: u32) -> Planned {
+        let name = run_name(cell.method, cell.setting, cell.seed);
+        let run_dir = layout.run_dir(&name);
+        let model = layout.model(&name);
+        let eval_dir = layout.eval_dir(&name);
+        let training = Training::of(&run_dir);
+        let export = !model_is_current(&model, &run_dir);
+        let eval = export || !eval_is_current(&eval_dir, &[cell.setting], episodes, Some(&model));
+        let config_differs = matches!(training, Training::Finished | Training::Resume { .. })
+            && FileConfig::load(Some(&run_dir.join("config.toml"))).is_ok_and(|run| {
+                run.train != file.train
+                    || cell.method.sim_config(&run.sim) != cell.method.sim_config(&file.sim)
+            });
+        Planned {
+            cell,
+            name,
+            run_dir,
+            model,
+            eval_dir,
+            training,
+            export,
+            eval,
+            config_differs,
+        }
+    }
+
+    /// Nothing left to do.
+    pub fn complete(&self) -> bool {
+        self.training == Training::Finished && !self.export && !self.eval
+    }
+}
+
+pub fn plan(grid: &Grid, layout: &Layout, episodes: u32) -> Vec<Planned> {
+    cells(&grid.methods, &grid.settings, &grid.seeds)
+        .into_iter()
+        .map(|c| Planned::new(c, layout, &grid.file, episodes))
+        .collect()
+}
+
+// ---------------------------------------------------------------------------------------------
+// How long it takes.
+
+/// Rough costs, used until steps of this invocation have been timed. Measured with `fsrl
+/// train --single-process` on the 2-core development machine (2026-12): one SARL/FSRL RL
+/// episode with 100 batches of 100 takes about 0.35 s, 92 % of it learning (BENCHMARKS.md), so
+/// it scales with `rl.batches_per_episode`.
+const RL_EPISODE_S: f64 = 0.35;
+const RL_LEARNING_SHARE: f64 = 0.92;
+/// Imitation, 3000 demonstrations × 50 epochs: about 2 min, proportional to episodes × epochs.
+const IMITATION_S: f64 = 120.0;
+const IMITATION_UNITS: f64 = 3000.0 * 50.0;
+/// One test episode of a SARL network on both cores (~70 steps × 1.24 ms per decision / 2).
+const TEST_EPISODE_S: f64 = 0.045;
+/// LSTM-RL against SARL: 3.76 vs 9.59 ms per update, 0.60 vs 1.02 ms per decision
+/// (BENCHMARKS.md).
+const LSTM_RL_FACTOR: f64 = 0.45;
+
+fn method_factor(m: Method) -> f64 {
+    if m == Method::LstmRl {
+        LSTM_RL_FACTOR
+    } else {
+        1.0
+    }
+}
+
+/// Rough seconds to finish training from `state`: imitation, the RL episodes left with their
+/// validations, the final evaluation.
+pub fn rough_train_s(method: Method, t: &TrainConfig, state: Training) -> f64 {
+    let (imitation, rl_from) = match state {
+        Training::Finished => return 0.0,
+        Training::Resume { rl_done } => (false, rl_done),
+        Training::Restart | Training::New => (true, 0),
+    };
+    let il_s = if imitation {
+        IMITATION_S * t.imitation.episodes as f64 * t.imitation.epochs as f64 / IMITATION_UNITS
+    } else {
+        0.0
+    };
+    let left = t.rl.episodes.saturating_sub(rl_from) as f64;
+    let episode_s = RL_EPISODE_S
+        * ((1.0 - RL_LEARNING_SHARE) + RL_LEARNING_SHARE * t.rl.batches_per_episode as f64 / 100.0);
+    let validations = if t.validation_every_episodes > 0 {
+        (left / t.validation_every_episodes as f64).ceil()
+    } else {
+        0.0
+    };
+    let test_episodes = validations * t.validation_episodes as f64 + t.eval_episodes as f64;
+    method_factor(method) * (il_s + left * episode_s + test_episodes * TEST_EPISODE_S)
+}
+
+/// Rough seconds of one evaluation.
+pub fn rough_eval_s(method: Method, episodes: u32) -> f64 {
+    method_factor(method) * episodes as f64 * TEST_EPISODE_S
+}
+
+/// Timed steps of this invocation against their rough estimates: the rough figure of a step
+/// times measured/rough of the method's timed steps (for fresh runs of one config, the mean
+/// measured time per run), else of all timed steps, else 1.
+#[derive(Debug, Default)]
+pub struct Calibration {
+    train: Vec<(Method, f64, f64)>,
+    eval: Vec<(Method, f64, f64)>,
+}
+
+impl Calibration {
+    pub fn record_train(&mut self, m: Method, measured_s: f64, rough_s: f64) {
+        self.train.push((m, measured_s, rough_s));
+    }
+
+    pub fn record_eval(&mut self, m: Method, measured_s: f64, rough_s: f64) {
+        self.eval.push((m, measured_s, rough_s));
+    }
+
+    fn factor(samples: &[(Method, f64, f64)], m: Method) -> f64 {
+        let ratio = |it: &mut dyn Iterator<Item = &(Method, f64, f64)>| {
+            let (measured, rough) = it.fold((0.0, 0.0), |(a, b), x| (a + x.1, b + x.2));
+            (rough > 0.0).then_some(measured / rough)
+        };
+        ratio(&mut samples.iter().filter(|x| x.0 == m))
+            .or_else(|| ratio(&mut samples.iter()))
+            .unwrap_or(1.0)
+    }
+
+    pub fn train_factor(&self, m: Method) -> f64 {
+        Self::factor(&self.train, m)
+    }
+
+    pub fn eval_factor(&self, m: Method) -> f64 {
+        Self::factor(&self.eval, m)
+    }
+
+    /// Seconds left for one planned run (0 when it will be skipped).
+    pub fn estimate_s(&self, p: &Planned, t: &TrainConfig, episodes: u32, no_train: bool) -> f64 {
+        let m = p.cell.method;
+        if no_train && p.training != Training::Finished {
+            return 0.0;
+        }
+        let train = rough_train_s(m, t, p.training) * self.train_factor(m);
+        let eval = if p.eval {
+            rough_eval_s(m, episodes) * self.eval_factor(m)
+        } else {
+            0.0
+        };
+        train + eval
+    }
+
+    /// Seconds left for `planned`.
+    pub fn eta_s(
+        &self,
+        planned: &[Planned],
+        t: &TrainConfig,
+        episodes: u32,
+        no_train: bool,
+    ) -> f64 {
+        planned
+            .iter()
+            .map(|p| self.estimate_s(p, t, episodes, no_train))
+            .sum()
+    }
+}
+
+/// `3h05m`, `12m40s`, `7s`.
+pub fn duration_text(s: f64) -> String {
+    let s = s.max(0.0).round() as u64;
+    match s {
+        0..60 => format!("{s}s"),
+        60..3600 => format!("{}m{:02}s", s / 60, s % 60),
+        _ => format!("{}h{:02}m", s / 3600, (s % 3600) / 60),
+    }
+}
+
+/// The plan as a table with a summary line.
+pub fn describe(
+    planned: &[Planned],
+    orca_current: bool,
+    t: &TrainConfig,
+    episodes: u32,
+    no_train: bool,
+) -> String {
+    let cal = Calibration::default();
+    let w = planned
+        .iter()
+        .map(|p| p.name.len())
+        .max()
+        .unwrap_or(0)
+        .max(20);
+    let mut s = format!(
+        "  {:<w$}  {:<28}  {:<7}  {:<9}  estimate\n",
+        "run", "training", "model", "eval"
+    );
+    let (mut finished, mut resume, mut fresh, mut export, mut eval) = (0, 0, 0, 0, 0);
+    let mut differs = false;
+    for p in planned {
+        let skip = no_train && p.training != Training::Finished;
+        let mut training = p.training.text();
+        if p.config_differs {
+            training.push('*');
+            differs = true;
+        }
+        if skip {
+            training += ", skipped";
+        }
+        match p.training {
+            Training::Finished => finished += 1,
+            Training::Resume { .. } => resume += 1,
+            Training::Restart | Training::New => fresh += 1,
+        }
+        export += usize::from(p.export && !skip);
+        eval += usize::from(p.eval && !skip);
+        let est = cal.estimate_s(p, t, episodes, no_train);
+        let _ = writeln!(
+            s,
+            "  {:<w$}  {:<28}  {:<7}  {:<9}  {}",
+            p.name,
+            training,
+            match (skip, p.export) {
+                (true, _) => "–",
+                (false, true) => "export",
+                (false, false) => "ok",
+            },
+            match (skip, p.eval) {
+                (true, _) => "–",
+                (false, true) => "evaluate",
+                (false, false) => "ok",
+            },
+            if est > 0.0 {
+                duration_text(est)
+            } else {
+                "–".into()
+            }
+        );
+    }
+    let _ = writeln!(
+        s,
+        "  {:<w$}  {:<28}  {:<7}  {}",
+        "orca (six settings)",
+        "–",
+        "–",
+        if orca_current { "ok" } else { "evaluate" }
+    );
+    if differs {
+        s += "  * trained with another [sim] or [train] than the config file; kept as it is (delete its directory to train it again)\n";
+    }
+    let _ = writeln!(
+        s,
+        "{} runs: {finished} finished, {resume} to resume, {fresh} to train{}; {export} to export, {eval} to evaluate; estimated {} (rough: {RL_EPISODE_S} s per SARL/FSRL RL episode at 100 batches, imitation {} for 3000 × 50, LSTM-RL × {LSTM_RL_FACTOR}; calibrated on the runs timed once training starts)",
+        planned.len(),
+        if no_train && resume + fresh > 0 { " (skipped: --no-train)" } else { "" },
+        duration_text(cal.eta_s(planned, t, episodes, no_train)),
+        duration_text(IMITATION_S),
+    );
+    s
+}
+
+// ---------------------------------------------------------------------------------------------
+// Child processes.
+
+/// Runs steps as child processes of this executable, one at a time, forwarding Ctrl-C.
+struct Runner {
+    exe: PathBuf,
+    interrupts: Arc<AtomicU32>,
+}
+
+impl Runner {
+    fn new() -> anyhow::Result<Self> {
+        let interrupts = Arc::new(AtomicU32::new(0));
+        {
+            let interrupts = interrupts.clone();
+            ctrlc::set_handler(move || {
+                if interrupts.fetch_add(1, Ordering::SeqCst) == 0 {
+                    eprintln!("\ninterrupted: stopping the current step (fsrl train writes a checkpoint first); Ctrl-C again to stop it at once");
+                }
+            })
+            .context("cannot install the Ctrl-C handler")?;
+        }
+        Ok(Self {
+            exe: std::env::current_exe().context("cannot find the fsrl executable")?,
+            interrupts,
+        })
+    }
+
+    fn interrupted(&self) -> bool {
+        self.interrupts.load(Ordering::SeqCst) > 0
+    }
+
+    /// Stops the grid after an interrupt, saying how to go on.
+    fn stop(&self, what: &str) -> ! {
+        let argv: Vec<String> = std::env::args_os()
+            .map(|a| a.to_string_lossy().into_owned())
+            .collect();
+        eprintln!(
+            "stopped {what}. Finished steps are kept and an interrupted training resumes from its checkpoint: to continue, run the same command again:\n  {}\n(add --no-train for a report of what is finished)",
+            argv.join(" ")
+        );
+        std::process::exit(130)
+    }
+
+    /// Runs `fsrl ARGS`, its output on our stderr. The child has its own process group, so a
+    /// terminal's Ctrl-C reaches only us and we forward each one: the first makes `fsrl train`
+    /// checkpoint and exit, a second stops it at once. After an interrupt the grid stops.
+    fn step(&self, tag: &str, what: &str, dir: &Path, args: &[OsString]) -> anyhow::Result<()> {
+        if self.interrupted() {
+            self.stop(&format!("before {tag}: {what}"));
+        }
+        let mut child = Command::new(&self.exe)
+            .args(args)
+            .stdin(Stdio::null())
+            .stdout(Stdio::from(std::io::stderr()))
+            .stderr(Stdio::from(std::io::stderr()))
+            .process_group(0)
+            .spawn()
+            .with_context(|| format!("{tag}: cannot start {}", self.exe.display()))?;
+        let mut forwarded = 0;
+        let status: ExitStatus = loop {
+            if let Some(status) = child.try_wait()? {
+                break status;
+            }
+            let n = self.interrupts.load(Ordering::SeqCst);
+            if n > forwarded {
+                forwarded = n;
+                // SAFETY: kill(2) on the pid of our child, which has not been reaped (try_wait
+                // above saw it running and only this thread waits for it).
+                unsafe {
+                    libc::kill(child.id() as libc::pid_t, libc::SIGINT);
+                }
+            }
+            std::thread::sleep(Duration::from_millis(100));
+        };
+        if self.interrupted() {
+            self.stop(&format!("during {tag}: {what}"));
+        }
+        if !status.success() {
+            bail!(
+                "{tag}: {what} failed ({status}); its directory: {}. The grid stopped here; fix the cause and run the same command again (finished runs are skipped)",
+                dir.display()
+            );
+        }
+        Ok(())
+    }
+}
+
+fn os(args: &[&dyn AsRef<std::ffi::OsStr>]) -> Vec<OsString> {
+    args.iter().map(|a| a.as_ref().to_os_string()).collect()
+}
+
+// ---------------------------------------------------------------------------------------------
+
+pub fn run(args: ReproduceArgs) -> anyhow::Result<()> {
+    let grid = grid(&args)?;
+    let layout = Layout {
+        runs: args.runs.clone(),
+        models: args.models.clone(),
+    };
+    let planned = plan(&grid, &layout, args.episodes);
+    let train = &grid.file.train;
+    let orca_dir = layout.orca_eval_dir();
+    let orca_current = eval_is_current(&orca_dir, &Setting::ALL, args.episodes, None);
+    let report_dir = args.out.clone().unwrap_or_else(|| args.runs.join("report"));
+    let table = describe(&planned, orca_current, train, args.episodes, args.no_train);
+    let header = format!(
+        "fsrl reproduce: {} seeds × {} settings × {} methods = {} runs (seed-major, then setting, then method), config {}, runs in {}, models in {}, {} test episodes per evaluation\n",
+        grid.seeds.len(),
+        grid.settings.len(),
+        grid.methods.len(),
+        planned.len(),
+        args.config.display(),
+        layout.runs.display(),
+        layout.models.display(),
+        args.episodes
+    );
+    if args.dry_run {
+        print!("{header}{table}");
+        return Ok(());
+    }
+    eprint!("{header}{table}");
+
+    let runner = Runner::new()?;
+    let mut cal = Calibration::default();
+    let config = args.config.as_os_str();
+    let episodes = args.episodes.to_string();
+    if !orca_current {
+        eprintln!("[orca] evaluating ORCA on the six settings ...");
+        runner.step(
+            "[orca]",
+            "evaluating ORCA",
+            &orca_dir,
+            &os(&[
+                &"eval",
+                &"--orca",
+                &"--episodes",
+                &episodes,
+                &"--config",
+                &config,
+                &"--out",
+                &orca_dir,
+            ]),
+        )?;
+    }
+    let mut sources = vec![orca_dir.join("eval.json")];
+    let n = planned.len();
+    let mut complete = planned.iter().filter(|p| p.complete()).count();
+    for (i, p) in planned.iter().enumerate() {
+        let tag = format!("[{}/{n}] {}", i + 1, p.name);
+        if p.complete() {
+            eprintln!("{tag}: finished, exported and evaluated; skipped");
+            sources.push(p.eval_dir.join("eval.json"));
+            continue;
+        }
+        let start = Instant::now();
+        let Cell {
+            method,
+            setting,
+            seed,
+        } = p.cell;
+        let state = Training::of(&p.run_dir);
+        if state != Training::Finished {
+            if args.no_train {
+                eprintln!("{tag}: training not finished; skipped (--no-train)");
+                continue;
+            }
+            if state == Training::Restart {
+                eprintln!(
+                    "{tag}: {} holds neither report.json nor a checkpoint (stopped during imitation); removing it",
+                    p.run_dir.display()
+                );
+                std::fs::remove_dir_all(&p.run_dir)
+                    .with_context(|| format!("cannot remove {}", p.run_dir.display()))?;
+            }
+            let rough = rough_train_s(method, train, state);
+            eprintln!(
+                "{tag}: training, {}, about {} ...",
+                state.text(),
+                duration_text(rough * cal.train_factor(method))
+            );
+            let seed_text = seed.to_string();
+            let mut a = os(&[
+                &"train",
+                &"--single-process",
+                &"--config",
+                &config,
+                &"--method",
+                &method.name(),
+                &"--setting",
+                &setting.name(),
+                &"--seed",
+                &seed_text,
+                &"--out",
+                &p.run_dir,
+            ]);
+            if matches!(state, Training::Resume { .. }) {
+                a.push("--resume".into());
+            }
+            let t0 = Instant::now();
+            runner.step(&tag, "training", &p.run_dir, &a)?;
+            if Training::of(&p.run_dir) != Training::Finished {
+                bail!(
+                    "{tag}: fsrl train exited without writing {}",
+                    p.run_dir.join("report.json").display()
+                );
+            }
+            cal.record_train(method, t0.elapsed().as_secs_f64(), rough);
+        }
+        if !model_is_current(&p.model, &p.run_dir) {
+            eprintln!("{tag}: exporting {} ...", p.model.display());
+            std::fs::create_dir_all(&layout.models)
+                .with_context(|| format!("cannot create {}", layout.models.display()))?;
+            runner.step(
+                &tag,
+                "exporting the model",
+                &p.run_dir,
+                &os(&[&"export-model", &p.run_dir, &"--out", &p.model]),
+            )?;
+            if !model_is_current(&p.model, &p.run_dir) {
+                bail!(
+                    "{tag}: fsrl export-model did not write {}",
+                    p.model.display()
+                );
+            }
+        }
+        if !eval_is_current(&p.eval_dir, &[setting], args.episodes, Some(&p.model)) {
+            eprintln!("{tag}: evaluating on {episodes} test episodes of {setting} ...");
+            let t0 = Instant::now();
+            runner.step(
+                &tag,
+                "evaluating the model",
+                &p.eval_dir,
+                &os(&[
+                    &"eval",
+                    &p.model,
+                    &"--settings",
+                    &setting.name(),
+                    &"--episodes",
+                    &episodes,
+                    &"--out",
+                    &p.eval_dir,
+                ]),
+            )?;
+            cal.record_eval(
+                method,
+                t0.elapsed().as_secs_f64(),
+                rough_eval_s(method, args.episodes),
+            );
+        }
+        sources.push(p.eval_dir.join("eval.json"));
+        complete += 1;
+        eprintln!(
+            "{tag}: done in {}; {complete}/{n} runs complete, grid ETA {}",
+            duration_text(start.elapsed().as_secs_f64()),
+            duration_text(cal.eta_s(&planned[i + 1..], train, args.episodes, args.no_train))
+        );
+    }
+    eprintln!(
+        "report of {} evaluated runs and ORCA → {}",
+        sources.len() - 1,
+        report_dir.display()
+    );
+    cmd_compare::run(CompareArgs {
+        runs: sources,
+        out: Some(report_dir),
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn set(name: &str) -> Setting {
+        name.parse().unwrap()
+    }
+
+    fn args(config: &Path, runs: &Path) -> ReproduceArgs {
+        ReproduceArgs {
+            config: config.to_path_buf(),
+            methods: vec!["sarl".into()],
+            settings: Vec::new(),
+            seeds: vec![0],
+            runs: runs.to_path_buf(),
+            models: runs.join("models"),
+            episodes: 500,
+            out: None,
+            dry_run: true,
+            no_train: false,
+        }
+    }
+
+    #[test]
+    fn the_grid_is_seed_major_then_setting_then_method_in_the_order_given() {
+        let (a, b) = (set("env2-visible"), set("env1-invisible"));
+        let c = cells(&[Method::Fsrl, Method::Sarl], &[a, b], &[1, 0]);
+        let got: Vec<(Method, Setting, u64)> =
+            c.iter().map(|c| (c.method, c.setting, c.seed)).collect();
+        assert_eq!(
+            got,
+            vec![
+                (Method::Fsrl, a, 1),
+                (Method::Sarl, a, 1),
+                (Method::Fsrl, b, 1),
+                (Method::Sarl, b, 1),
+                (Method::Fsrl, a, 0),
+                (Method::Sarl, a, 0),
+                (Method::Fsrl, b, 0),
+                (Method::Sarl, b, 0),
+            ]
+        );
+    }
+
+    #[test]
+    fn run_names_are_those_of_fsrl_train() {
+        let mut f = FileConfig::default();
+        f.run.method = "sarl+foresight".into();
+        f.run.setting = "env3-visible".into();
+        f.run.seed = 2;
+        let resolved = f.resolve(Vec::new()).unwrap();
+        let name = run_name(Method::SarlForesight, set("env3-visible"), 2);
+        assert_eq!(name, "sarl-foresight-env3-visible-s2");
+        assert_eq!(resolved.default_run_dir(), Path::new("runs").join(&name));
+        let layout = Layout {
+            runs: "r".into(),
+            models: "m".into(),
+        };
+        assert_eq!(
+            layout.model(&name),
+            Path::new("m/sarl-foresight-env3-visible-s2.fsrlm")
+        );
+        assert_eq!(
+            layout.eval_dir(&name),
+            Path::new("r/eval/sarl-foresight-env3-visible-s2")
+        );
+    }
+
+    #[test]
+    fn run_directories_are_new_restarted_resumed_or_finished() {
+        let tmp = tempfile::tempdir().unwrap();
+        let dir = tmp.path().join("run");
+        assert_eq!(Training::of(&dir), Training::New);
+        std::fs::create_dir_all(dir.join("checkpoints")).unwrap();
+        std::fs::write(dir.join("config.toml"), "").unwrap();
+        assert_eq!(Training::of(&dir), Training::Restart);
+        std::fs::write(dir.join("checkpoints/latest.ckpt"), "x").unwrap();
+        assert_eq!(Training::of(&dir), Training::Resume { rl_done: 0 });
+        let lines: String = (0..5)
+            .map(|k| format!("{{\"phase\":\"rl\",\"episode\":{k}}}\n"))
+            .chain(["{\"phase\":\"validation\",\"episode\":5}\n".to_string()])
+            .collect();
+        std::fs::write(
+            dir.join("metrics.jsonl"),
+            format!("{{\"phase\":\"imitation\",\"epoch\":0}}\n{lines}"),
+        )
+        .unwrap();
+        assert_eq!(Training::of(&dir), Training::Resume { rl_done: 5 });
+        std::fs::write(dir.join("report.json"), "{}").unwrap();
+        assert_eq!(Training::of(&dir), Training::Finished);
+    }
+
+    fn touch(path: &Path, secs_ago: u64) {
+        let f = std::fs::File::options().write(true).open(path).unwrap();
+        f.set_modified(SystemTime::now() - Duration::from_secs(secs_ago))
+            .unwrap();
+    }
+
+    fn eval_json(settings: &[&str], episodes: u32) -> String {
+        let subject = crate::report::SubjectReport {
+            label: "x".into(),
+            method: "sarl".into(),
+            checkpoint: None,
+            policy_version: 1,
+            run_seed: Some(0),
+            trained_setting: None,
+            settings: settings
+                .iter()
+                .map(|s| crate::report::SettingReport::new(s, &sim::Aggregate::default()))
+                .collect(),
+        };
+        serde_json::to_string(&EvalReport {
+            kind: EVAL_KIND.into(),
+            test_seed_start: 1000,
+            episodes_per_setting: episodes,
+            subjects: vec![subject],
+        })
+        .unwrap()
+    }
+
+    #[test]
+    fn models_and_evaluations_are_redone_when_missing_stale_or_different() {
+        let tmp = tempfile::tempdir().unwrap();
+        let layout = Layout {
+            runs: tmp.path().join("runs"),
+            models: tmp.path().join("models"),
+        };
+        let name = "sarl-env2-visible-s0";
+        let (run, model, eval) = (
+            layout.run_dir(name),
+            layout.model(name),
+            layout.eval_dir(name),
+        );
+        std::fs::create_dir_all(&run).unwrap();
+        std::fs::create_dir_all(&layout.models).unwrap();
+        std::fs::create_dir_all(&eval).unwrap();
+        std::fs::write(run.join("report.json"), "{}").unwrap();
+        assert!(!model_is_current(&model, &run), "no model yet");
+        std::fs::write(&model, "m").unwrap();
+        touch(&run.join("report.json"), 100);
+        touch(&model, 50);
+        assert!(model_is_current(&model, &run));
+        touch(&model, 200);
+        assert!(!model_is_current(&model, &run), "older than the report");
+        touch(&model, 50);
+
+        let cell = Cell {
+            method: Method::Sarl,
+            setting: set("env2-visible"),
+            seed: 0,
+        };
+        let file = FileConfig::default();
+        let p = Planned::new(cell, &layout, &file, 500);
+        assert_eq!(p.training, Training::Finished);
+        assert!(!p.export && p.eval && !p.complete());
+        let json = eval.join("eval.json");
+        std::fs::write(&json, eval_json(&["env2-visible"], 500)).unwrap();
+        assert!(Planned::new(cell, &layout, &file, 500).complete());
+        assert!(
+            !Planned::new(cell, &layout, &file, 100).complete(),
+            "another episode count"
+        );
+        std::fs::write(&json, eval_json(&["env1-visible"], 500)).unwrap();
+        assert!(
+            !Planned::new(cell, &layout, &file, 500).complete(),
+            "another setting"
+        );
+        std::fs::write(&json, eval_json(&["env2-visible"], 500)).unwrap();
+        touch(&json, 80);
+        assert!(
+            !Planned::new(cell, &layout, &file, 500).complete(),
+            "older than the model"
+        );
+        touch(&model, 300);
+        let p = Planned::new(cell, &layout, &file, 500);
+        assert!(p.export && p.eval, "a model to export is evaluated again");
+        // The ORCA evaluation covers all six settings.
+        let orca = layout.orca_eval_dir();
+        std::fs::create_dir_all(&orca).unwrap();
+        std::fs::write(orca.join("eval.json"), eval_json(&["env2-visible"], 500)).unwrap();
+        assert!(!eval_is_current(&orca, &Setting::ALL, 500, None));
+        let all: Vec<&str> = Setting::ALL.iter().map(|s| s.name()).collect();
+        std::fs::write(orca.join("eval.json"), eval_json(&all, 500)).unwrap();
+        assert!(eval_is_current(&orca, &Setting::ALL, 500, None));
+    }
+
+    #[test]
+    fn a_run_trained_with_another_schedule_is_flagged() {
+        let tmp = tempfile::tempdir().unwrap();
+        let layout = Layout {
+            runs: tmp.path().to_path_buf(),
+            models: tmp.path().join("models"),
+        };
+        let cell = Cell {
+            method: Method::Sarl,
+            setting: set("env1-invisible"),
+            seed: 0,
+        };
+        let dir = layout.run_dir(&run_name(cell.method, cell.setting, 0));
+        std::fs::create_dir_all(&dir).unwrap();
+        std::fs::write(dir.join("report.json"), "{}").unwrap();
+        let mut file = FileConfig::default();
+        // A resumed run writes its sim with the method's reward switches: not a difference.
+        let mut written = file.clone();
+        written.sim = cell.method.sim_config(&written.sim);
+        std::fs::write(dir.join("config.toml"), toml::to_string(&written).unwrap()).unwrap();
+        assert!(!Planned::new(cell, &layout, &file, 500).config_differs);
+        file.train.rl.episodes = 7;
+        assert!(Planned::new(cell, &layout, &file, 500).config_differs);
+    }
+
+    #[test]
+    fn rough_estimates_follow_the_schedule() {
+        let t = TrainConfig::default();
+        // 2 min imitation + 10,000 × 0.35 s + (20 validations × 100 + 500) test episodes.
+        let fresh = 120.0 + 10_000.0 * 0.35 + 2500.0 * TEST_EPISODE_S;
+        let sarl = rough_train_s(Method::Sarl, &t, Training::New);
+        assert!((sarl - fresh).abs() < 1e-6, "{sarl}");
+        assert_eq!(rough_train_s(Method::Fsrl, &t, Training::Restart), sarl);
+        let lstm = rough_train_s(Method::LstmRl, &t, Training::New);
+        assert!((lstm - LSTM_RL_FACTOR * fresh).abs() < 1e-6);
+        // Resumed after 6000 episodes: no imitation, 4000 episodes and 8 validations left.
+        let resumed = rough_train_s(Method::Sarl, &t, Training::Resume { rl_done: 6000 });
+        let expected = 4000.0 * 0.35 + (800.0 + 500.0) * TEST_EPISODE_S;
+        assert!((resumed - expected).abs() < 1e-6, "{resumed}");
+        assert_eq!(rough_train_s(Method::Sarl, &t, Training::Finished), 0.0);
+        // Half the batches: learning (92 %) halves.
+        let mut half = t.clone();
+        half.rl.batches_per_episode = 50;
+        half.validation_every_episodes = 0;
+        half.imitation.epochs = 25;
+        let h = rough_train_s(Method::Sarl, &half, Training::New);
+        let expected = 60.0 + 10_000.0 * 0.35 * (0.08 + 0.46) + 500.0 * TEST_EPISODE_S;
+        assert!((h - expected).abs() < 1e-6, "{h}");
+        assert!((rough_eval_s(Method::Sarl, 500) - 500.0 * TEST_EPISODE_S).abs() < 1e-9);
+    }
+
+    #[test]
+    fn the_eta_uses_the_methods_own_timings_then_all_timings() {
+        let mut cal = Calibration::default();
+        assert_eq!(cal.train_factor(Method::Fsrl), 1.0);
+        cal.record_train(Method::Sarl, 200.0, 100.0);
+        cal.record_train(Method::Sarl, 400.0, 100.0);
+        assert_eq!(cal.train_factor(Method::Sarl), 3.0, "mean 300 s per run");
+        assert_eq!(
+            cal.train_factor(Method::Fsrl),
+            3.0,
+            "no FSRL run yet: all runs"
+        );
+        cal.record_train(Method::LstmRl, 50.0, 100.0);
+        assert_eq!(cal.train_factor(Method::LstmRl), 0.5);
+        assert_eq!(cal.train_factor(Method::Fsrl), 650.0 / 300.0);
+        assert_eq!(cal.eval_factor(Method::Sarl), 1.0, "evaluations apart");
+
+        // The grid's ETA: a fresh SARL run, a finished one left to evaluate, one finished
+        // and evaluated.
+        let t = TrainConfig::default();
+        let cell = Cell {
+            method: Method::Sarl,
+            setting: set("env1-invisible"),
+            seed: 0,
+        };
+        let planned = |training, eval| Planned {
+            cell,
+            name: String::new(),
+            run_dir: PathBuf::new(),
+            model: PathBuf::new(),
+            eval_dir: PathBuf::new(),
+            training,
+            export: eval,
+            eval,
+            config_differs: false,
+        };
+        let grid = [
+            planned(Training::New, true),
+            planned(Training::Finished, true),
+            planned(Training::Finished, false),
+        ];
+        let train_s = rough_train_s(Method::Sarl, &t, Training::New);
+        let eval_s = rough_eval_s(Method::Sarl, 100);
+        let eta = cal.eta_s(&grid, &t, 100, false);
+        assert!((eta - (3.0 * train_s + 2.0 * eval_s)).abs() < 1e-6);
+        let eta = cal.eta_s(&grid, &t, 100, true);
+        assert!(
+            (eta - eval_s).abs() < 1e-6,
+            "--no-train skips the fresh run"
+        );
+        assert_eq!(cal.eta_s(&grid[2..], &t, 100, false), 0.0);
+    }
+
+    #[test]
+    fn durations_read_well() {
+        assert_eq!(duration_text(7.4), "7s");
+        assert_eq!(duration_text(760.0), "12m40s");
+        assert_eq!(duration_text(3.0 * 3600.0 + 5.0 * 60.0 + 10.0), "3h05m");
+        assert_eq!(duration_text(-1.0), "0s");
+    }
+
+    #[test]
+    fn bad_names_are_refused_together_before_anything_starts() {
+        let tmp = tempfile::tempdir().unwrap();
+        let cfg = tmp.path().join("c.toml");
+        std::fs::write(&cfg, "[train]\ngamma = 1.5\n").unwrap();
+        let mut a = args(&cfg, &tmp.path().join("runs"));
+        a.methods = vec!["dqn".into(), "orca".into(), "sarl".into(), "sarl".into()];
+        a.settings = vec!["env9-visible".into(), "env1-visible".into()];
+        a.seeds = vec![0, 0];
+        a.episodes = 0;
+        let err = format!("{:#}", grid(&a).err().unwrap());
+        for needle in [
+            "7 problems",
+            "unknown method `dqn`",
+            "orca is not trained",
+            "lists sarl twice",
+            "unknown setting `env9-visible`",
+            "--seeds lists 0 twice",
+            "--episodes",
+            "train.gamma",
+        ] {
+            assert!(err.contains(needle), "missing {needle:?} in\n{err}");
+        }
+        assert!(!tmp.path().join("runs").exists());
+
+        a = args(&tmp.path().join("missing.toml"), tmp.path());
+        let err = format!("{:#}", grid(&a).err().unwrap());
+        assert!(err.contains("missing.toml"), "{err}");
+    }
+
+    #[test]
+    fn the_plan_lists_every_run_and_the_estimate() {
+        let tmp = tempfile::tempdir().unwrap();
+        let cfg = tmp.path().join("c.toml");
+        std::fs::write(&cfg, "").unwrap();
+        let mut a = args(&cfg, &tmp.path().join("runs"));
+        a.methods = vec!["lstm-rl".into(), "fsrl".into()];
+        a.settings = vec!["env1-invisible".into()];
+        a.seeds = vec![0, 1];
+        let g = grid(&a).unwrap();
+        let layout = Layout {
+            runs: a.runs.clone(),
+            models: a.models.clone(),
+        };
+        let dir = layout.run_dir("fsrl-env1-invisible-s0");
+        std::fs::create_dir_all(dir.join("checkpoints")).unwrap();
+        std::fs::write(dir.join("checkpoints/latest.ckpt"), "x").unwrap();
+        let p = plan(&g, &layout, 500);
+        let names: Vec<&str> = p.iter().map(|p| p.name.as_str()).collect();
+        assert_eq!(
+            names,
+            [
+                "lstm-rl-env1-invisible-s0",
+                "fsrl-env1-invisible-s0",
+                "lstm-rl-env1-invisible-s1",
+                "fsrl-env1-invisible-s1"
+            ]
+        );
+        let text = describe(&p, false, &g.file.train, 500, false);
+        assert!(text.contains("resume (0 RL ep. done)"), "{text}");
+        assert!(
+            text.contains(
+                "4 runs: 0 finished, 1 to resume, 3 to train; 4 to export, 4 to evaluate"
+            ),
+            "{text}"
+        );
+        let text = describe(&p, true, &g.file.train, 500, true);
+        assert!(
+            text.contains("(skipped: --no-train); 0 to export, 0 to evaluate; estimated 0s"),
+            "{text}"
+        );
+    }
+}

@@ -1,0 +1,328 @@
+//! Model files (`.fsrlm`): every model shipped in `models/` is the network its method uses and
+//! still does exactly what its recorded check says on the recorded test seeds (same outcomes and
+//! steps, returns within 1e-6). Without shipped models the same code runs on a model built from
+//! a freshly initialised learner, through the library and through `fsrl export-model`, `fsrl
+//! eval`, `fsrl plot episode` and `fsrl evaluator --model`; damaged files are clear errors.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+use learner::checkpoint::{self, RunInfo};
+use learner::model::{load_policy, ArtifactKind, Model, ModelError};
+use learner::LearnerCore;
+use policy::method::{Method, TrainConfig};
+use sim::{Outcome, SimConfig};
+
+const RETURN_TOLERANCE: f64 = 1e-6;
+
+fn threads() -> usize {
+    std::thread::available_parallelism().map_or(1, |n| n.get())
+}
+
+/// The model is what its method trains, and replays its check.
+fn assert_reproduces(model: &Model, name: &str) {
+    let net = model.net.config();
+    assert_eq!(
+        Some(net.clone()),
+        model.method.net(),
+        "{name}: not the network of method {}",
+        model.method
+    );
+    assert_eq!(model.net.params().len(), net.num_params(), "{name}");
+    assert!(!model.check.is_empty(), "{name}: no recorded check");
+    let again = model.run_check(threads()).unwrap();
+    assert_eq!(again.len(), model.check.len(), "{name}");
+    for (r, p) in model.check.iter().zip(&again) {
+        assert_eq!(r.seed, p.seed, "{name}");
+        assert_eq!(
+            (r.outcome, r.steps),
+            (p.outcome, p.steps),
+            "{name}: seed {} ended differently",
+            r.seed
+        );
+        assert!(
+            (r.return_sum - p.return_sum).abs() <= RETURN_TOLERANCE,
+            "{name}: seed {} return {} recorded, {} now",
+            r.seed,
+            r.return_sum,
+            p.return_sum
+        );
+    }
+    model.verify_check(threads(), RETURN_TOLERANCE).unwrap();
+}
+
+#[test]
+fn shipped_models_reproduce_their_recorded_check() {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("models");
+    let mut files: Vec<PathBuf> = std::fs::read_dir(&dir)
+        .map(|entries| {
+            entries
+                .filter_map(|e| e.ok().map(|e| e.path()))
+                .filter(|p| p.extension().is_some_and(|e| e == "fsrlm"))
+                .collect()
+        })
+        .unwrap_or_default();
+    files.sort();
+    if files.is_empty() {
+        eprintln!("note: no models/*.fsrlm yet; the format is exercised by the fresh-model tests");
+    }
+    for path in &files {
+        let name = path.display().to_string();
+        let model = Model::load(path).unwrap_or_else(|e| panic!("{e}"));
+        assert_reproduces(&model, &name);
+        let wins = model
+            .check
+            .iter()
+            .filter(|e| e.outcome == Outcome::ReachGoal)
+            .count();
+        eprintln!(
+            "{name}: {} trained on {}, seed {}: {wins}/{} check episodes reach the goal, reproduced",
+            model.method,
+            model.setting,
+            model.run_seed,
+            model.check.len()
+        );
+    }
+}
+
+const SEED: u64 = 11;
+
+/// A learner as `fsrl train` starts it (small replay: nothing is trained).
+fn fresh_core(method: Method) -> (LearnerCore, SimConfig, RunInfo) {
+    let mut train = TrainConfig::default();
+    train.rl.replay_capacity = 64;
+    let sim = SimConfig::default();
+    let core = LearnerCore::new(method, train, sim.humans.count, sim.dt_s, SEED).unwrap();
+    let run = RunInfo {
+        run_id: "fresh".into(),
+        setting: "env1-invisible".into(),
+        run_seed: SEED,
+        accepted_below: Default::default(),
+    };
+    (core, method.sim_config(&sim), run)
+}
+
+fn same_model(a: &Model, b: &Model) {
+    assert_eq!(a.method, b.method);
+    assert_eq!(a.net.config(), b.net.config());
+    let bits = |m: &Model| -> Vec<u32> { m.net.params().iter().map(|x| x.to_bits()).collect() };
+    assert_eq!(bits(a), bits(b));
+    assert_eq!(
+        (a.setting, a.run_seed, &a.run_id, a.counters),
+        (b.setting, b.run_seed, &b.run_id, b.counters)
+    );
+    assert_eq!((&a.train, &a.sim), (&b.train, &b.sim));
+    assert_eq!(a.check, b.check);
+}
+
+#[test]
+fn a_fresh_model_round_trips_reproduces_and_refuses_damage() {
+    let tmp = tempfile::tempdir().unwrap();
+    for method in [Method::Fsrl, Method::LstmRl] {
+        let (core, sim, run) = fresh_core(method);
+        let mut model = Model::from_core(&core, &sim, &run).unwrap();
+        model.record_check(1000, 3, threads()).unwrap();
+        let path = tmp.path().join(format!("{method}.fsrlm"));
+        model.save(&path).unwrap();
+        let back = Model::load(&path).unwrap();
+        same_model(&model, &back);
+        // The same values for the same states: the weights are the network.
+        assert_eq!(back.run_check(1).unwrap(), model.check);
+        assert_reproduces(&back, &path.display().to_string());
+
+        let bytes = std::fs::read(&path).unwrap();
+        let damaged = tmp.path().join("damaged.fsrlm");
+        let load_err = |b: &[u8]| -> String {
+            std::fs::write(&damaged, b).unwrap();
+            let e = Model::load(&damaged).expect_err("a damaged model must not load");
+            assert!(matches!(e, ModelError::Format { .. }), "{e}");
+            e.to_string()
+        };
+        let mut flipped = bytes.clone();
+        flipped[bytes.len() / 3] ^= 0x08;
+        assert!(load_err(&flipped).contains("checksum mismatch"));
+        assert!(load_err(&bytes[..bytes.len() - 7]).contains("truncated model file"));
+        assert!(load_err(&bytes[..12]).contains("truncated model file"));
+        let mut other = bytes.clone();
+        other[8..12].copy_from_slice(&2u32.to_le_bytes());
+        assert!(load_err(&other).contains("model format version 2"));
+        // Every single flipped byte anywhere is caught (magic, header, payload or checksum).
+        for i in (0..bytes.len())
+            .step_by(997)
+            .chain([0, 9, 13, bytes.len() - 1])
+        {
+            let mut b = bytes.clone();
+            b[i] ^= 0x80;
+            let _ = load_err(&b);
+        }
+    }
+}
+
+fn fsrl(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_fsrl"))
+        .args(args)
+        .output()
+        .unwrap()
+}
+
+fn ok(args: &[&str]) -> String {
+    let o = fsrl(args);
+    let stdout = String::from_utf8_lossy(&o.stdout).into_owned();
+    assert!(
+        o.status.success(),
+        "fsrl {args:?} failed:\n{stdout}\n{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    stdout
+}
+
+fn fails(args: &[&str]) -> String {
+    let o = fsrl(args);
+    assert!(!o.status.success(), "fsrl {args:?} should fail");
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+#[test]
+fn every_command_that_takes_a_checkpoint_takes_a_model_file() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path();
+    // A run directory as `fsrl train` leaves it, with an untrained network.
+    let (core, sim, run) = fresh_core(Method::Fsrl);
+    let run_dir = dir.join("run");
+    std::fs::create_dir_all(run_dir.join("checkpoints")).unwrap();
+    checkpoint::save(&run_dir.join("checkpoints/latest.ckpt"), &core, &sim, &run).unwrap();
+
+    // export-model: a new directory, atomically, and what it wrote.
+    let model_path = dir.join("models/fsrl-env1-invisible-s11.fsrlm");
+    let out = ok(&[
+        "export-model",
+        s(&run_dir),
+        "--out",
+        s(&model_path),
+        "--check-episodes",
+        "3",
+    ]);
+    for want in [
+        "method fsrl, sarl network with 96502 parameters",
+        "trained on env1-invisible, run seed 11",
+        "check: 3 greedy episodes of env1-invisible, seeds 1000..=1002",
+        "seed  1002",
+    ] {
+        assert!(out.contains(want), "{want:?} not in\n{out}");
+    }
+    let size = std::fs::metadata(&model_path).unwrap().len();
+    assert!(out.contains(&format!("({size} bytes")), "{out}");
+    assert!(size < 500_000, "{size} bytes is no small model");
+    assert!(!dir
+        .join("models/fsrl-env1-invisible-s11.fsrlm.tmp")
+        .exists());
+    let model = Model::load(&model_path).unwrap();
+    let mut expected = Model::from_core(&core, &sim, &run).unwrap();
+    expected.record_check(1000, 3, 1).unwrap();
+    same_model(&model, &expected);
+    // Detected by content: the checkpoint under a model's name is still a checkpoint.
+    let disguised = dir.join("disguised.fsrlm");
+    std::fs::copy(run_dir.join("checkpoints/latest.ckpt"), &disguised).unwrap();
+    let (m, kind) = load_policy(&disguised).unwrap();
+    assert_eq!(kind, ArtifactKind::Checkpoint);
+    assert_eq!(m.net.params(), model.net.params());
+
+    // eval: the report names method, trained setting and seed; its numbers are the check's.
+    let ev = dir.join("ev");
+    ok(&[
+        "eval",
+        s(&model_path),
+        "--settings",
+        "env1-invisible",
+        "--episodes",
+        "3",
+        "--out",
+        s(&ev),
+    ]);
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(ev.join("eval.json")).unwrap()).unwrap();
+    let subj = &json["subjects"][0];
+    assert_eq!(subj["label"], "fsrl (trained env1-invisible, seed 11)");
+    assert_eq!(subj["method"], "fsrl");
+    assert_eq!(subj["trained_setting"], "env1-invisible");
+    assert_eq!(subj["run_seed"], 11);
+    assert_eq!(subj["checkpoint"], s(&model_path));
+    let wins = model
+        .check
+        .iter()
+        .filter(|e| e.outcome == Outcome::ReachGoal)
+        .count();
+    assert_eq!(
+        subj["settings"][0]["successes"].as_u64(),
+        Some(wins as u64),
+        "{subj}"
+    );
+    let md = std::fs::read_to_string(ev.join("eval.md")).unwrap();
+    assert!(
+        md.contains("trained on env1-invisible (run seed 11)"),
+        "{md}"
+    );
+
+    // plot episode.
+    let pic = dir.join("episode");
+    ok(&[
+        "plot",
+        "episode",
+        s(&model_path),
+        "--seed",
+        "1000",
+        "--no-gif",
+        "--out",
+        s(&pic),
+    ]);
+    let svg = std::fs::read_to_string(pic.with_extension("svg")).unwrap();
+    assert!(
+        svg.contains("env1-invisible"),
+        "the picture names the setting"
+    );
+
+    // The evaluator process, offline.
+    let cfg = dir.join("evaluator.toml");
+    std::fs::write(&cfg, "[evaluator]\nsettings = [\"env1-invisible\"]\n").unwrap();
+    let evo = dir.join("evo");
+    let out = ok(&[
+        "evaluator",
+        "--config",
+        s(&cfg),
+        "--model",
+        s(&model_path),
+        "--episodes",
+        "3",
+        "--out-dir",
+        s(&evo),
+    ]);
+    assert!(
+        out.contains("Trained on env1-invisible (run seed 11)"),
+        "{out}"
+    );
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(evo.join("report.json")).unwrap()).unwrap();
+    let rate = report["settings"][0]["success_rate"].as_f64().unwrap();
+    assert!((rate - wins as f64 / 3.0).abs() < 1e-12, "{report}");
+
+    // Damaged model files are clear errors everywhere.
+    let bytes = std::fs::read(&model_path).unwrap();
+    let bad = dir.join("bad.fsrlm");
+    std::fs::write(&bad, &bytes[..bytes.len() / 2]).unwrap();
+    let e = fails(&["eval", s(&bad), "--episodes", "1"]);
+    assert!(e.contains("bad.fsrlm: truncated model file"), "{e}");
+    let mut flipped = bytes.clone();
+    flipped[bytes.len() / 2] ^= 1;
+    std::fs::write(&bad, &flipped).unwrap();
+    let e = fails(&["plot", "episode", s(&bad), "--out", s(&pic)]);
+    assert!(e.contains("corrupt model file (checksum mismatch)"), "{e}");
+    let e = fails(&["evaluator", "--checkpoint", s(&bad)]);
+    assert!(e.contains("bad.fsrlm: corrupt model file"), "{e}");
+    let e = fails(&["export-model", s(&bad), "--out", s(&dir.join("x.fsrlm"))]);
+    assert!(e.contains("checksum mismatch"), "{e}");
+    assert!(!dir.join("x.fsrlm").exists());
+}
