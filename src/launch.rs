@@ -76,6 +76,20 @@ fn spawn(exe: &Path, role: &str, args: &[String], logs: &Path) -> anyhow::Result
         .with_context(|| format!("cannot start the {role} process"))
 }
 
+/// Appends what `validation.jsonl` gained after byte `start` to the metrics log.
+fn copy_validation(path: &Path, start: u64, log: &mut File) -> anyhow::Result<()> {
+    let Ok(bytes) = std::fs::read(path) else {
+        return Ok(());
+    };
+    let new = bytes.get(start as usize..).unwrap_or_default();
+    for line in String::from_utf8_lossy(new).lines() {
+        let v: serde_json::Value = serde_json::from_str(line)
+            .with_context(|| format!("a broken line in {}", path.display()))?;
+        writeln!(log, "{v}")?;
+    }
+    Ok(())
+}
+
 /// The `phase = "validation"` line of `metrics.jsonl` (the same fields as `fsrl train
 /// --single-process` writes) from an evaluator's metrics message, if it is a validation point.
 fn validation_line(m: &proto::Metrics) -> Option<serde_json::Value> {
@@ -245,6 +259,10 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
         .append(true)
         .open(out.join("metrics.jsonl"))
         .context("cannot open metrics.jsonl")?;
+    // The evaluator appends the learning curve to validation.jsonl; what this invocation adds
+    // is copied into metrics.jsonl at the end (reliably, unlike the best-effort live metrics).
+    let validation_path = out.join("validation.jsonl");
+    let validation_start = std::fs::metadata(&validation_path).map_or(0, |m| m.len());
     let total = resolved.file.train.rl.episodes;
     let bar = ProgressBar::with_draw_target(Some(total), ProgressDrawTarget::stderr_with_hz(4));
     bar.set_style(
@@ -265,9 +283,15 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
         }
         if let Some(msg) = metrics.recv_timeout(Duration::from_millis(200))? {
             if msg.header.sender.role == Role::Evaluator {
-                // A point of the learning curve (the evaluator also keeps validation.jsonl).
+                // A point of the learning curve; it reaches metrics.jsonl from the evaluator's
+                // validation.jsonl when the run ends (this live copy is best effort).
                 if let Some(line) = validation_line(&msg.body) {
-                    let _ = writeln!(log, "{line}");
+                    bar.println(format!(
+                        "validation after {} RL episodes: success {:.2}, collision {:.2}, Disc. {:.3}",
+                        line["episode"], line["success_rate"].as_f64().unwrap_or(f64::NAN),
+                        line["collision_rate"].as_f64().unwrap_or(f64::NAN),
+                        line["discomfort"].as_f64().unwrap_or(f64::NAN)
+                    ));
                 }
                 continue;
             }
@@ -348,6 +372,9 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
             }
             std::thread::sleep(Duration::from_millis(100));
         }
+    }
+    if let Err(e) = copy_validation(&validation_path, validation_start, &mut log) {
+        eprintln!("warning: the learning curve did not reach metrics.jsonl: {e:#}");
     }
     if !failed.is_empty() {
         bail!(

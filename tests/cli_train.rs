@@ -102,6 +102,33 @@ fn a_short_run_leaves_a_complete_run_directory_and_resumes() {
         .map(|l| l["episode"].as_u64().unwrap())
         .collect();
     assert_eq!(episodes, vec![0, 1, 2, 3, 4]);
+    // The learning curve: the greedy policy on the validation seeds after imitation, at the end
+    // of the first invocation and at the end of the resumed one, on a clock that goes on.
+    let validation: Vec<serde_json::Value> = std::fs::read_to_string(out.join("metrics.jsonl"))
+        .unwrap()
+        .lines()
+        .map(|l| serde_json::from_str::<serde_json::Value>(l).unwrap())
+        .filter(|v| v["phase"] == "validation")
+        .collect();
+    let at: Vec<u64> = validation
+        .iter()
+        .map(|v| v["episode"].as_u64().unwrap())
+        .collect();
+    assert_eq!(at, vec![0, 3, 5]);
+    for v in &validation {
+        assert_eq!(v["episodes"], 100);
+        assert_eq!(v["seed_start"], 0);
+        let rates: f64 = ["success_rate", "collision_rate", "timeout_rate"]
+            .iter()
+            .map(|k| v[k].as_f64().unwrap())
+            .sum();
+        assert!((rates - 1.0).abs() < 1e-9, "{v}");
+    }
+    let wall: Vec<f64> = validation
+        .iter()
+        .map(|v| v["wall_s"].as_f64().unwrap())
+        .collect();
+    assert!(wall.windows(2).all(|w| w[0] < w[1]), "{wall:?}");
 }
 
 #[test]

@@ -508,13 +508,25 @@ fn one_command_local_training_runs_every_process_and_leaves_a_run_directory() {
     assert_eq!(r["final_snapshot"], true);
     let loaded = learner::checkpoint::load(&out.join("checkpoints/latest.ckpt")).unwrap();
     assert_eq!(loaded.core.counters().rl_episodes, 4);
-    assert!(
-        std::fs::read_to_string(out.join("metrics.jsonl"))
-            .unwrap()
-            .lines()
-            .count()
-            >= 1
-    );
+    let metrics = std::fs::read_to_string(out.join("metrics.jsonl")).unwrap();
+    assert!(metrics.lines().count() >= 1);
+    // The learning curve: the evaluator scored the final weights on the validation seeds of the
+    // run's setting, and the point reached metrics.jsonl.
+    let validation: Vec<serde_json::Value> = metrics
+        .lines()
+        .map(|l| serde_json::from_str::<serde_json::Value>(l).unwrap())
+        .filter(|v| v["phase"] == "validation")
+        .collect();
+    let last = validation
+        .last()
+        .expect("a validation line in metrics.jsonl");
+    assert_eq!(last["episode"], 4, "{last}");
+    assert_eq!(last["episodes"], 100, "{last}");
+    let rates: f64 = ["success_rate", "collision_rate", "timeout_rate"]
+        .iter()
+        .map(|k| last[k].as_f64().unwrap())
+        .sum();
+    assert!((rates - 1.0).abs() < 1e-9, "{last}");
     let leaked = before.new_since(|e| e.contains("fsrl"));
     assert!(leaked.is_empty(), "shared memory left behind: {leaked:?}");
     // The same command again refuses to overwrite the run.

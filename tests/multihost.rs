@@ -254,7 +254,12 @@ fn training_across_emulated_hosts_survives_a_link_outage_and_refuses_rogue_weigh
         return;
     }
     if let Some(why) = mh::netns_unavailable() {
-        println!("SKIPPED multihost test: {why}. It runs where network namespaces can be made (root with iproute2, as in CI).");
+        // Written to stderr itself: libtest hides what a passing test prints with println!.
+        use std::io::Write as _;
+        let _ = writeln!(
+            std::io::stderr(),
+            "SKIPPED multihost test: {why}. It runs where network namespaces can be made (root with iproute2, as in CI)."
+        );
         return;
     }
     let t0 = Instant::now();

@@ -367,6 +367,14 @@ mod tests {
         bad.rl.learning_rate = f64::NAN;
         bad.rl.batch_size = 0;
         assert_eq!(bad.problems().len(), 3, "{:?}", bad.problems());
+        // Validation seeds must stay clear of the test seeds (CrowdNav: 0..99 vs 1000..1499).
+        let mut overlap = c.clone();
+        overlap.validation_seed_start = 1400;
+        let p = overlap.problems();
+        assert_eq!(p.len(), 1, "{p:?}");
+        assert!(p[0].contains("overlap the test seeds 1000..1500"), "{p:?}");
+        overlap.validation_every_episodes = 0;
+        assert!(overlap.problems().is_empty());
     }
 }
 
