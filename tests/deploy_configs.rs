@@ -595,14 +595,13 @@ fn the_systemd_units_start_each_role_with_a_deployed_config() {
     }
 }
 
-/// The schedules and reward readings in `configs/` (and `docs/pictures.toml`) are valid run
+/// The schedules and reward readings in `configs/` are valid run
 /// configs, and `configs/spec-literal.toml` really is SPEC §3's literal reward.
 #[test]
 fn every_config_in_configs_is_valid() {
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
     let mut files = files_with("toml", &root.join("configs"));
     files.extend(files_with("toml", &root.join("configs/experiments")));
-    files.push(root.join("docs/pictures.toml"));
     assert!(files.len() >= 6, "{files:?}");
     for f in &files {
         let o = fsrl(&["check-config", f.to_str().unwrap()]);
