@@ -15,6 +15,7 @@ use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use learner::checkpoint::{self, RunInfo};
 use learner::LearnerCore;
 use policy::lookahead::Lookahead;
+use policy::method::RunSpec;
 use policy::rollout::{episode_seed, rollout, Behaviour};
 use serde::Serialize;
 use sim::{Env, Outcome};
@@ -86,67 +87,20 @@ fn last_wall(path: &Path) -> Duration {
     Duration::from_secs_f64(wall_s)
 }
 
-/// One point of the learning curve: the greedy policy on the validation seeds of the run's
-/// setting after `episode` RL episodes (`phase = "validation"` in `metrics.jsonl`).
-#[derive(Serialize)]
-pub(crate) struct ValidationLine {
-    phase: &'static str,
-    /// RL episodes trained so far.
-    episode: u64,
-    env_steps: u64,
-    policy_version: u64,
-    episodes: u32,
-    seed_start: u64,
-    success_rate: f64,
-    collision_rate: f64,
-    timeout_rate: f64,
-    discomfort: f64,
-    nav_time_s: Option<f64>,
-    mean_return: f64,
-    /// Wall-clock seconds since the run (or its resumption) started, validation included.
-    wall_s: f64,
-}
-
+/// One point of the learning curve (`phase = "validation"` in `metrics.jsonl`): the evaluator's
+/// validation of the online network, with the learner's counters and the run's clock.
 fn validation_line(
     core: &LearnerCore,
-    train: &policy::method::TrainConfig,
-    sim: &sim::SimConfig,
-    setting: sim::Setting,
+    spec: &RunSpec,
     elapsed: Duration,
-) -> anyhow::Result<ValidationLine> {
-    let subject = Subject {
-        method: core.method(),
-        net: Some(core.online()),
-        gamma: train.gamma,
-        human_model: train.human_model.into(),
-        orca_safety_space_m: 0.0,
-    };
+) -> anyhow::Result<serde_json::Value> {
     let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
-    let results = evaluate(
-        subject,
-        sim,
-        &[setting],
-        train.validation_seed_start,
-        train.validation_episodes,
-        threads,
-    )?;
-    let a = &results[0].aggregate;
     let c = core.counters();
-    Ok(ValidationLine {
-        phase: "validation",
-        episode: c.rl_episodes,
-        env_steps: c.env_steps,
-        policy_version: c.policy_version,
-        episodes: a.episodes,
-        seed_start: train.validation_seed_start,
-        success_rate: a.success_rate(),
-        collision_rate: a.collision_rate(),
-        timeout_rate: a.timeout_rate(),
-        discomfort: a.discomfort(),
-        nav_time_s: a.nav_time_s(),
-        mean_return: a.mean_return(),
-        wall_s: elapsed.as_secs_f64(),
-    })
+    let point = evaluator::process::validate(spec, core.online(), threads, c.rl_episodes, elapsed)?;
+    let mut line = serde_json::to_value(&point)?;
+    line["env_steps"] = c.env_steps.into();
+    line["policy_version"] = c.policy_version.into();
+    Ok(line)
 }
 
 pub(crate) fn resolve(args: &TrainArgs) -> anyhow::Result<Resolved> {
@@ -358,8 +312,15 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
     let rl_start = Instant::now();
     let mut interrupted = false;
     let validate_every = train.validation_every_episodes;
+    let spec = RunSpec {
+        method,
+        setting,
+        sim: file.sim.clone(),
+        train: train.clone(),
+        seed: run_seed,
+    };
     let validate = |core: &LearnerCore, metrics: &mut std::fs::File| -> anyhow::Result<()> {
-        let line = validation_line(core, &train, &file.sim, setting, wall0 + start.elapsed())?;
+        let line = validation_line(core, &spec, wall0 + start.elapsed())?;
         writeln!(metrics, "{}", serde_json::to_string(&line)?)?;
         Ok(())
     };
@@ -444,13 +405,7 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
         "evaluating on {} test episodes of {setting} ...",
         train.eval_episodes
     );
-    let subject = Subject {
-        method,
-        net: Some(core.online()),
-        gamma: train.gamma,
-        human_model: train.human_model.into(),
-        orca_safety_space_m: 0.0,
-    };
+    let subject = Subject::of_run(&spec, core.online());
     let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
     let results = evaluate(
         subject,

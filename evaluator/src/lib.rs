@@ -21,6 +21,19 @@ pub struct Subject<'a> {
     pub orca_safety_space_m: f64,
 }
 
+impl<'a> Subject<'a> {
+    /// The greedy policy of a run's method with `net`, under the run's γ and human model.
+    pub fn of_run(spec: &policy::method::RunSpec, net: &'a ValueNet) -> Self {
+        Self {
+            method: spec.method,
+            net: Some(net),
+            gamma: spec.train.gamma,
+            human_model: spec.train.human_model.into(),
+            orca_safety_space_m: 0.0,
+        }
+    }
+}
+
 /// Why an evaluation failed.
 #[derive(Debug, thiserror::Error)]
 pub enum EvalError {

@@ -191,15 +191,8 @@ pub fn validate(
     trained: u64,
     elapsed: Duration,
 ) -> Result<ValidationPoint, ProcessError> {
-    let subject = Subject {
-        method: spec.method,
-        net: Some(net),
-        gamma: spec.train.gamma,
-        human_model: spec.train.human_model.into(),
-        orca_safety_space_m: 0.0,
-    };
     let results = evaluate(
-        subject,
+        Subject::of_run(spec, net),
         &spec.sim,
         &[spec.setting],
         spec.train.validation_seed_start,
@@ -311,15 +304,8 @@ pub fn run(
             final_snapshot = finished,
             "evaluating a snapshot"
         );
-        let subject = Subject {
-            method: spec.method,
-            net: Some(&net),
-            gamma: spec.train.gamma,
-            human_model: spec.train.human_model.into(),
-            orca_safety_space_m: 0.0,
-        };
         let results = evaluate(
-            subject,
+            Subject::of_run(spec, &net),
             &spec.sim,
             &opts.settings,
             opts.seed_start,
