@@ -3,37 +3,11 @@
 //! non-trivial SVG, PNG or GIF with the expected bars, series and frames. Bad inputs give clear
 //! errors. Set `FSRL_PICTURES_KEEP=dir` to keep the pictures for a look.
 
+mod cli_support;
+use cli_support::{fails, fsrl, ok, s};
+
 use std::collections::HashSet;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
-
-fn fsrl(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_fsrl"))
-        .args(args)
-        .output()
-        .unwrap()
-}
-
-fn ok(args: &[&str]) -> String {
-    let o = fsrl(args);
-    let stdout = String::from_utf8_lossy(&o.stdout).into_owned();
-    assert!(
-        o.status.success(),
-        "fsrl {args:?} failed:\n{stdout}\n{}",
-        String::from_utf8_lossy(&o.stderr)
-    );
-    stdout
-}
-
-fn fails(args: &[&str]) -> String {
-    let o = fsrl(args);
-    assert!(!o.status.success(), "fsrl {args:?} should fail");
-    String::from_utf8_lossy(&o.stderr).into_owned()
-}
-
-fn s(p: &Path) -> &str {
-    p.to_str().unwrap()
-}
 
 fn train(dir: &Path, method: &str, name: &str) -> PathBuf {
     let out = dir.join(name);

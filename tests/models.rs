@@ -4,8 +4,10 @@
 //! a freshly initialised learner, through the library and through `fsrl export-model`, `fsrl
 //! eval`, `fsrl plot episode` and `fsrl evaluator --model`; damaged files are clear errors.
 
+mod cli_support;
+use cli_support::{fails, ok, s};
+
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
 
 use learner::checkpoint::{self, RunInfo};
 use learner::model::{load_policy, ArtifactKind, Model, ModelError};
@@ -156,34 +158,6 @@ fn a_fresh_model_round_trips_reproduces_and_refuses_damage() {
             let _ = load_err(&b);
         }
     }
-}
-
-fn fsrl(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_fsrl"))
-        .args(args)
-        .output()
-        .unwrap()
-}
-
-fn ok(args: &[&str]) -> String {
-    let o = fsrl(args);
-    let stdout = String::from_utf8_lossy(&o.stdout).into_owned();
-    assert!(
-        o.status.success(),
-        "fsrl {args:?} failed:\n{stdout}\n{}",
-        String::from_utf8_lossy(&o.stderr)
-    );
-    stdout
-}
-
-fn fails(args: &[&str]) -> String {
-    let o = fsrl(args);
-    assert!(!o.status.success(), "fsrl {args:?} should fail");
-    String::from_utf8_lossy(&o.stderr).into_owned()
-}
-
-fn s(p: &Path) -> &str {
-    p.to_str().unwrap()
 }
 
 #[test]
