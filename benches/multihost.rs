@@ -115,10 +115,11 @@ fn strings(a: &[&str]) -> Vec<String> {
     a.iter().map(|s| s.to_string()).collect()
 }
 
-/// A deploy config with the run, endpoint and schedule of this benchmark.
+/// A deploy config with the run, endpoint and schedule of this benchmark; `deploy` is a file of
+/// `deploy/` or `actor-<k>` (actor k's own file, made as `deploy/README.md` makes it).
 fn config(dir: &Path, deploy: &str, out: &str, run_id: &str, endpoint: &str) -> PathBuf {
     let run_dir = dir.join(format!("run-{run_id}"));
-    adapt_deploy_config(deploy, dir, out, |t| {
+    let edit = |t: &mut toml::Table| {
         let r = table(t, &["run"]);
         r.insert("id".into(), run_id.into());
         r.insert("method".into(), "sarl".into());
@@ -140,7 +141,11 @@ fn config(dir: &Path, deploy: &str, out: &str, run_id: &str, endpoint: &str) -> 
             l.insert("in_flight_per_actor".into(), 8.into());
             l.insert("metrics_interval_ms".into(), 250.into());
         }
-    })
+    };
+    match deploy.strip_prefix("actor-") {
+        Some(k) => mh::adapt_actor_config(k.parse().expect("an actor id"), dir, out, edit),
+        None => adapt_deploy_config(deploy, dir, out, edit),
+    }
 }
 
 fn episodes_per_s(hosts: &Hosts, dir: &Path, across: bool) -> f64 {
@@ -170,7 +175,7 @@ fn episodes_per_s(hosts: &Hosts, dir: &Path, across: bool) -> f64 {
         dir,
         "router",
         &hosts.hub,
-        &mh::router_args(dir, &[]),
+        &mh::router_args_for_run(dir, &run_id, &[]),
     );
     spawn(
         &mut procs,
@@ -190,7 +195,7 @@ fn episodes_per_s(hosts: &Hosts, dir: &Path, across: bool) -> f64 {
         };
         let cfg = config(
             dir,
-            "cluster-actor.toml",
+            &format!("actor-{k}"),
             &format!("b-actor{k}.toml"),
             &run_id,
             &endpoint,
@@ -250,7 +255,7 @@ fn weight_latency(hosts: &Hosts, dir: &Path, proto: &str) -> Vec<f64> {
         dir,
         &format!("router-{proto}"),
         &hosts.hub,
-        &mh::router_args(dir, &extra),
+        &mh::router_args_for_run(dir, &run_id, &extra),
     );
     let ep = |host: &str| format!("{proto}/{host}:{port}");
     let publisher = config(
@@ -265,7 +270,7 @@ fn weight_latency(hosts: &Hosts, dir: &Path, proto: &str) -> Vec<f64> {
             hosts.actors[0].clone(),
             config(
                 dir,
-                "cluster-actor.toml",
+                "actor-0",
                 "l-sub0.toml",
                 &run_id,
                 &ep(&Hosts::hub_addr(0)),
@@ -275,7 +280,7 @@ fn weight_latency(hosts: &Hosts, dir: &Path, proto: &str) -> Vec<f64> {
             hosts.actors[1].clone(),
             config(
                 dir,
-                "cluster-actor.toml",
+                "actor-1",
                 "l-sub1.toml",
                 &run_id,
                 &ep(&Hosts::hub_addr(1)),

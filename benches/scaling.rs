@@ -3,6 +3,10 @@
 //! configuration and the ratios to one actor, all measured in this one run.
 //!
 //! `cargo bench -p fsrl --bench scaling`
+//!
+//! With `FSRL_BASELINE_BIN=/path/to/an/older/fsrl` each configuration is measured with that
+//! binary and with this build, alternately in the same run, and the table gains the ratio
+//! (how a change affects throughput, free of the machine's drift between runs).
 
 #[path = "../tests/shm_support/mod.rs"]
 mod shm_support;
@@ -39,7 +43,7 @@ impl Drop for Procs {
     }
 }
 
-fn episodes_per_s(actors: u32) -> f64 {
+fn episodes_per_s(bin: &str, actors: u32) -> f64 {
     let port = TcpListener::bind("127.0.0.1:0")
         .unwrap()
         .local_addr()
@@ -58,7 +62,6 @@ fn episodes_per_s(actors: u32) -> f64 {
         ),
     )
     .unwrap();
-    let bin = env!("CARGO_BIN_EXE_fsrl");
     let spawn = |args: &[&str]| {
         Command::new(bin)
             .args(args)
@@ -124,17 +127,36 @@ fn main() {
     }
     let shm_before = ShmSnapshot::take();
     let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+    let current = env!("CARGO_BIN_EXE_fsrl");
+    let baseline = std::env::var("FSRL_BASELINE_BIN").ok();
     let mut rows = Vec::new();
     for actors in [1, 2, 4] {
-        let r = episodes_per_s(actors);
-        println!("{actors} actor(s): {r:.2} episodes/s");
-        rows.push((actors, r));
+        let before = baseline.as_deref().map(|b| episodes_per_s(b, actors));
+        let r = episodes_per_s(current, actors);
+        match before {
+            Some(b) => println!("{actors} actor(s): {r:.2} episodes/s (baseline {b:.2})"),
+            None => println!("{actors} actor(s): {r:.2} episodes/s"),
+        }
+        rows.push((actors, r, before));
     }
     let base = rows[0].1;
     println!("\n== actor scaling, learner updates off, iceoryx2, {cores} cores ==");
-    println!("| actors | episodes/s | vs 1 actor |\n|---|---|---|");
-    for (a, r) in &rows {
-        println!("| {a} | {r:.2} | {:.2}x |", r / base);
+    if let Some(b) = &baseline {
+        println!("baseline: {b}");
+        println!("| actors | episodes/s | vs 1 actor | baseline episodes/s | this / baseline |\n|---|---|---|---|---|");
+        for (a, r, before) in &rows {
+            let before = before.unwrap_or(f64::NAN);
+            println!(
+                "| {a} | {r:.2} | {:.2}x | {before:.2} | {:.2}x |",
+                r / base,
+                r / before
+            );
+        }
+    } else {
+        println!("| actors | episodes/s | vs 1 actor |\n|---|---|---|");
+        for (a, r, _) in &rows {
+            println!("| {a} | {r:.2} | {:.2}x |", r / base);
+        }
     }
     let leaked = shm_before.new_since(|e| e.starts_with("fsrl_scale")).len();
     if leaked > 0 {

@@ -285,7 +285,8 @@ impl FileConfig {
             .with_context(|| format!("cannot read config file {}", path.display()))?;
         let mut f: Self = toml::from_str(&text)
             .with_context(|| format!("invalid config file {}", path.display()))?;
-        // Certificates and password files named relative to the config file's directory.
+        // Certificates and password files named relative to the config file's directory
+        // (secrets: `$CREDENTIALS_DIRECTORY` first, for systemd `LoadCredential=`).
         // (Absolute, so that a resolved config written elsewhere, e.g. by `fsrl train`, still
         // names the same files.)
         let abs = std::path::absolute(path)

@@ -1,9 +1,12 @@
 //! Every file in `deploy/` is parsed and validated, and broken ones are refused:
 //! * the run configs by `fsrl check-config`, with the certificates and passwords that
-//!   `deploy/make-test-ca.sh` makes, laid out as in `/etc/fsrl`;
+//!   `deploy/make-test-ca.sh` makes, laid out as in `/etc/fsrl` (one actor config per actor, made
+//!   from `cluster-actor.toml` as the README says); password files others may read are refused;
 //! * the router's JSON5 by zenoh itself (and opened as a router, which checks its access
-//!   control), its rules against the keys `proto::keys` builds (who may publish what);
-//! * the systemd units for the fields they need and the commands and files they name.
+//!   control), its rules against the keys `proto::keys` builds (who may publish and see what:
+//!   least privilege per role and per actor, for the deployed run id only);
+//! * the systemd units for the fields they need and the commands, users, credentials and files
+//!   they name.
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -34,7 +37,19 @@ fn files_with(ext: &str, dir: &Path) -> Vec<PathBuf> {
     files
 }
 
-/// A directory laid out like `/etc/fsrl`: the test CA's files and copies of the run configs.
+/// The actors `router.json5` lists and `make-test-ca.sh` makes users for by default.
+const ACTORS: u32 = 4;
+
+/// `cluster-actor.toml` (actor 0's) made actor `id`'s, as the README and the file say:
+/// `sed "s/actor-0/actor-<id>/g"`.
+fn actor_config_text(id: u32) -> String {
+    let text = std::fs::read_to_string(deploy().join("cluster-actor.toml")).unwrap();
+    assert!(text.contains("user = \"actor-0\""), "{text}");
+    text.replace("actor-0", &format!("actor-{id}"))
+}
+
+/// A directory laid out like `/etc/fsrl`: the test CA's files, copies of the run configs and
+/// each actor's `cluster-actor-<id>.toml`.
 fn etc_fsrl() -> tempfile::TempDir {
     let d = tempfile::tempdir().unwrap();
     let o = Command::new("bash")
@@ -52,7 +67,18 @@ fn etc_fsrl() -> tempfile::TempDir {
     for f in files_with("toml", &deploy()) {
         std::fs::copy(&f, d.path().join(f.file_name().unwrap())).unwrap();
     }
+    for id in 0..ACTORS {
+        let p = d.path().join(format!("cluster-actor-{id}.toml"));
+        std::fs::write(p, actor_config_text(id)).unwrap();
+    }
     d
+}
+
+/// Writes `text` to `path` with permission bits `mode`.
+fn write_mode(path: &Path, text: &str, mode: u32) {
+    use std::os::unix::fs::PermissionsExt as _;
+    std::fs::write(path, text).unwrap();
+    std::fs::set_permissions(path, std::fs::Permissions::from_mode(mode)).unwrap();
 }
 
 #[test]
@@ -96,11 +122,80 @@ fn every_deploy_run_config_is_valid_beside_its_certificates_and_passwords() {
     let out = String::from_utf8_lossy(&o.stdout);
     let ca = etc.path().join("certs/ca.crt");
     assert!(out.contains(&*ca.to_string_lossy()), "{out}");
-    assert!(out.contains("user = \"actor\""), "{out}");
+    assert!(out.contains("user = \"actor-0\""), "{out}");
     assert!(
         !out.contains("password ="),
         "the password must stay in its file: {out}"
     );
+    // Each actor its own user and password file.
+    for id in 0..ACTORS {
+        let p = etc.path().join(format!("cluster-actor-{id}.toml"));
+        let o = fsrl(&["check-config", "--print", &p.to_string_lossy()]);
+        let out = String::from_utf8_lossy(&o.stdout);
+        let password = etc.path().join(format!("actor-{id}.password"));
+        assert!(
+            o.status.success()
+                && out.contains(&format!("user = \"actor-{id}\""))
+                && out.contains(&*password.to_string_lossy()),
+            "{out}{}",
+            String::from_utf8_lossy(&o.stderr)
+        );
+    }
+    // Under systemd (LoadCredential=), the password is the unit's credential, not the file
+    // beside the config.
+    let creds = tempfile::tempdir().unwrap();
+    write_mode(
+        &creds.path().join("actor-1.password"),
+        "from-systemd\n",
+        0o400,
+    );
+    let o = Command::new(env!("CARGO_BIN_EXE_fsrl"))
+        .args(["check-config", "--print"])
+        .arg(etc.path().join("cluster-actor-1.toml"))
+        .env("CREDENTIALS_DIRECTORY", creds.path())
+        .output()
+        .unwrap();
+    let out = String::from_utf8_lossy(&o.stdout);
+    let credential = creds.path().join("actor-1.password");
+    assert!(
+        o.status.success()
+            && out.contains(&format!("password_file = \"{}\"", credential.display())),
+        "{out}{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+}
+
+#[test]
+fn a_password_file_others_may_read_is_refused_naming_it_its_mode_and_the_fix() {
+    let etc = etc_fsrl();
+    let password = etc.path().join("actor-2.password");
+    let config = etc.path().join("cluster-actor-2.toml");
+    let config = config.to_string_lossy();
+    assert!(fsrl(&["check-config", &config]).status.success());
+    let pw = std::fs::read_to_string(&password).unwrap();
+    write_mode(&password, &pw, 0o644);
+    let o = fsrl(&["check-config", &config]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    let shown = password.display().to_string();
+    assert!(!o.status.success(), "{err}");
+    for needle in [
+        shown.clone(),
+        "mode 0644".into(),
+        format!("chmod 600 {shown}"),
+    ] {
+        assert!(err.contains(&needle), "{needle:?} missing in {err}");
+    }
+    // The process itself stops at start-up with it (instead of retrying).
+    write_mode(&password, &pw, 0o640);
+    let o = fsrl(&["actor", "--config", &config, "--id", "2"]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success(), "{err}");
+    assert!(
+        err.contains("mode 0640") && err.contains("chmod 600"),
+        "{err}"
+    );
+    write_mode(&password, &pw, 0o600);
+    assert!(fsrl(&["check-config", &config]).status.success());
 }
 
 #[test]
@@ -111,7 +206,7 @@ fn a_cluster_config_without_its_files_is_refused_naming_every_missing_path() {
     ]);
     assert!(!o.status.success());
     let err = String::from_utf8_lossy(&o.stderr);
-    for p in ["deploy/certs/ca.crt", "deploy/actor.password"] {
+    for p in ["deploy/certs/ca.crt", "deploy/actor-0.password"] {
         assert!(err.contains(p), "{p} not named in: {err}");
     }
     // The process itself stops at once with the same message instead of retrying.
@@ -122,12 +217,12 @@ fn a_cluster_config_without_its_files_is_refused_naming_every_missing_path() {
     ]);
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(!o.status.success(), "{err}");
-    assert!(err.contains("deploy/actor.password"), "{err}");
+    assert!(err.contains("deploy/actor-0.password"), "{err}");
 
     // An empty password file, half a client certificate, a tls/ endpoint without a CA.
     let d = tempfile::tempdir().unwrap();
     std::fs::write(d.path().join("ca.crt"), "not checked here").unwrap();
-    std::fs::write(d.path().join("empty.password"), "\n").unwrap();
+    write_mode(&d.path().join("empty.password"), "\n", 0o600);
     let p = d.path().join("bad.toml");
     std::fs::write(
         &p,
@@ -234,6 +329,16 @@ fn the_router_config_is_zenoh_json5_that_opens_a_tls_router() {
     assert_eq!(json(&c, "access_control/enabled"), true);
     assert_eq!(json(&c, "access_control/default_permission"), "deny");
     assert!(json(&c, "transport/auth/usrpwd/dictionary_file").is_string());
+    // A client that stops reading stalls reliable traffic through the router for at most 2 s
+    // (zenoh's default: 5 s), then loses its session.
+    let wait_us = json(
+        &c,
+        "transport/link/tx/queue/congestion_control/block/wait_before_close",
+    );
+    assert!(
+        wait_us.as_i64().is_some_and(|us| us > 0 && us <= 2_000_000),
+        "wait_before_close {wait_us}"
+    );
 
     // In place the files under /etc/fsrl are missing: `fsrl router --check` names each.
     let o = fsrl(&["router", "--check", "--config", &path.to_string_lossy()]);
@@ -339,31 +444,82 @@ fn ingress_rights() -> BTreeMap<String, BTreeMap<String, Vec<String>>> {
     rights
 }
 
-#[test]
-fn the_access_control_lets_each_role_send_only_its_own_topics() {
-    let rights = ingress_rights();
-    let users: Vec<&String> = rights.keys().collect();
-    assert_eq!(users, ["actor", "evaluator", "learner", "monitor"]);
-    let allowed = |user: &str, message: &str, key: &str| -> bool {
-        let key = zenoh::key_expr::KeyExpr::try_from(key.to_string()).unwrap();
-        rights[user].get(message).is_some_and(|kes| {
+/// The run id every `cluster-*.toml` names (they must agree).
+fn deployed_run_id() -> String {
+    let ids: std::collections::BTreeSet<String> = files_with("toml", &deploy())
+        .iter()
+        .filter(|f| {
+            f.file_name()
+                .unwrap()
+                .to_string_lossy()
+                .starts_with("cluster-")
+        })
+        .map(|f| {
+            let t: toml::Table = std::fs::read_to_string(f).unwrap().parse().unwrap();
+            t["run"]["id"].as_str().unwrap().to_string()
+        })
+        .collect();
+    assert_eq!(
+        ids.len(),
+        1,
+        "the cluster configs name different runs: {ids:?}"
+    );
+    ids.into_iter().next().unwrap()
+}
+
+/// Whether `user` may send `message` on `key` into the router.
+fn allowed(
+    rights: &BTreeMap<String, BTreeMap<String, Vec<String>>>,
+    user: &str,
+    message: &str,
+    key: &str,
+) -> bool {
+    let key = zenoh::key_expr::KeyExpr::try_from(key.to_string()).unwrap();
+    rights
+        .get(user)
+        .and_then(|r| r.get(message))
+        .is_some_and(|kes| {
             kes.iter().any(|ke| {
                 zenoh::key_expr::KeyExpr::try_from(ke.clone())
                     .unwrap_or_else(|e| panic!("{ke}: {e}"))
                     .includes(&key)
             })
         })
-    };
-    let run = RunId::new("cluster").unwrap();
+}
+
+/// The messages by which a client publishes (as opposed to subscribing or asking).
+const PUBLISHING: [&str; 5] = [
+    "put",
+    "delete",
+    "reply",
+    "declare_queryable",
+    "liveliness_token",
+];
+
+#[test]
+fn the_access_control_lets_each_role_send_and_see_only_its_own_topics() {
+    let rights = ingress_rights();
+    let users: Vec<&String> = rights.keys().collect();
+    let mut want: Vec<String> = (0..ACTORS).map(|k| format!("actor-{k}")).collect();
+    want.extend(["evaluator", "learner", "monitor"].map(String::from));
+    assert_eq!(users, want.iter().collect::<Vec<_>>());
+    let run = RunId::new(deployed_run_id()).unwrap();
     let member = |role, index| Member {
         sender: SenderId::new(role, index),
         instance: 0x0123_4567_89ab_cdef,
     };
+    let alive = |role, index| keys::alive(&run, member(role, index));
     let weights = keys::weights(&run).key_expr().to_string();
     let control = keys::control(&run).key_expr().to_string();
-    let ack = keys::ack(&run, 3).key_expr().to_string();
-    let transitions = keys::transitions(&run, 3).key_expr().to_string();
+    let ack = |k| keys::ack(&run, k).key_expr().to_string();
+    let transitions = |k| keys::transitions(&run, k).key_expr().to_string();
+    let all_transitions = keys::all_transitions(&run).key_expr().to_string();
     let report = keys::eval_report(&run, 0).key_expr().to_string();
+    let all_reports = keys::all_eval_reports(&run).key_expr().to_string();
+    let all_metrics = keys::all_metrics(&run).key_expr().to_string();
+    let all_status = keys::all_status(&run).key_expr().to_string();
+    let all_alive = keys::all_alive(&run);
+    let everything = keys::run_prefix(&run);
     let metrics = |r, i| {
         keys::metrics(&run, SenderId::new(r, i))
             .key_expr()
@@ -376,92 +532,274 @@ fn the_access_control_lets_each_role_send_only_its_own_topics() {
     };
 
     // (user, message, key, allowed?)
-    let table: Vec<(&str, &str, String, bool)> = vec![
-        ("learner", "put", weights.clone(), true),
-        ("learner", "put", control.clone(), true),
-        ("learner", "put", ack.clone(), true),
-        ("learner", "put", metrics(Role::Learner, 0), true),
-        ("learner", "put", status(Role::Learner, 0), true),
-        ("learner", "declare_queryable", weights.clone(), true),
-        ("learner", "reply", weights.clone(), true),
-        ("learner", "reply", control.clone(), true),
-        (
-            "learner",
-            "liveliness_token",
-            keys::alive(&run, member(Role::Learner, 0)),
-            true,
-        ),
-        ("learner", "put", transitions.clone(), false),
-        ("learner", "put", report.clone(), false),
-        ("actor", "put", transitions.clone(), true),
-        ("actor", "put", metrics(Role::Actor, 3), true),
-        ("actor", "put", status(Role::Actor, 3), true),
-        (
-            "actor",
-            "liveliness_token",
-            keys::alive(&run, member(Role::Actor, 3)),
-            true,
-        ),
-        ("actor", "put", weights.clone(), false),
-        ("actor", "put", control.clone(), false),
-        ("actor", "put", ack.clone(), false),
-        ("actor", "put", report.clone(), false),
-        ("actor", "put", metrics(Role::Learner, 0), false),
-        ("actor", "declare_queryable", weights.clone(), false),
-        ("actor", "reply", weights.clone(), false),
-        ("actor", "reply", control.clone(), false),
-        ("actor", "delete", weights.clone(), false),
-        (
-            "actor",
-            "liveliness_token",
-            keys::alive(&run, member(Role::Learner, 0)),
+    let mut table: Vec<(String, &str, String, bool)> = Vec::new();
+    let mut row = |u: &str, m: &'static str, k: String, ok: bool| {
+        table.push((u.to_string(), m, k, ok));
+    };
+    // The learner: what it declares (learner::process) and nothing more.
+    for k in [
+        &weights,
+        &control,
+        &ack(3),
+        &metrics(Role::Learner, 0),
+        &status(Role::Learner, 0),
+    ] {
+        row("learner", "put", k.clone(), true);
+    }
+    for m in ["declare_queryable", "reply"] {
+        row("learner", m, weights.clone(), true);
+        row("learner", m, control.clone(), true);
+    }
+    row("learner", "liveliness_token", alive(Role::Learner, 0), true);
+    row(
+        "learner",
+        "declare_subscriber",
+        all_transitions.clone(),
+        true,
+    );
+    row("learner", "declare_subscriber", all_reports.clone(), true);
+    row("learner", "declare_subscriber", all_status.clone(), true);
+    row(
+        "learner",
+        "declare_liveliness_subscriber",
+        all_alive.clone(),
+        true,
+    );
+    row("learner", "liveliness_query", all_alive.clone(), true);
+    row("learner", "put", transitions(3), false);
+    row("learner", "put", report.clone(), false);
+    row("learner", "liveliness_token", alive(Role::Actor, 3), false);
+    row("learner", "declare_subscriber", everything.clone(), false);
+    row("learner", "declare_subscriber", all_metrics.clone(), false);
+    // Every actor: its own keys only.
+    for k in 0..ACTORS {
+        let u = format!("actor-{k}");
+        let other = (k + 1) % ACTORS;
+        row(&u, "put", transitions(k), true);
+        row(&u, "put", metrics(Role::Actor, k), true);
+        row(&u, "put", status(Role::Actor, k), true);
+        row(&u, "liveliness_token", alive(Role::Actor, k), true);
+        row(&u, "declare_subscriber", ack(k), true);
+        for key in [&weights, &control] {
+            row(&u, "declare_subscriber", key.clone(), true);
+            row(&u, "query", key.clone(), true);
+        }
+        row(&u, "declare_liveliness_subscriber", all_alive.clone(), true);
+        row(&u, "liveliness_query", all_alive.clone(), true);
+        // Not another actor's.
+        row(&u, "put", transitions(other), false);
+        row(&u, "put", metrics(Role::Actor, other), false);
+        row(&u, "put", status(Role::Actor, other), false);
+        row(&u, "liveliness_token", alive(Role::Actor, other), false);
+        row(&u, "declare_subscriber", ack(other), false);
+        row(&u, "delete", transitions(k), false);
+        // Not the learner's, the evaluator's or anyone's data.
+        for key in [&weights, &control, &ack(k), &report] {
+            row(&u, "put", key.clone(), false);
+        }
+        row(&u, "put", metrics(Role::Learner, 0), false);
+        row(&u, "declare_queryable", weights.clone(), false);
+        row(&u, "reply", weights.clone(), false);
+        row(&u, "reply", control.clone(), false);
+        row(&u, "delete", weights.clone(), false);
+        row(&u, "liveliness_token", alive(Role::Learner, 0), false);
+        for key in [
+            &all_transitions,
+            &transitions(other),
+            &all_metrics,
+            &all_reports,
+            &everything,
+        ] {
+            row(&u, "declare_subscriber", key.clone(), false);
+        }
+        row(&u, "query", all_transitions.clone(), false);
+    }
+    // The evaluator: reports out; weights and control in.
+    row("evaluator", "put", report.clone(), true);
+    row("evaluator", "put", metrics(Role::Evaluator, 0), true);
+    row(
+        "evaluator",
+        "liveliness_token",
+        alive(Role::Evaluator, 0),
+        true,
+    );
+    for key in [&weights, &control] {
+        row("evaluator", "declare_subscriber", key.clone(), true);
+        row("evaluator", "query", key.clone(), true);
+    }
+    row("evaluator", "put", weights.clone(), false);
+    row("evaluator", "put", transitions(0), false);
+    row("evaluator", "reply", weights.clone(), false);
+    row(
+        "evaluator",
+        "declare_subscriber",
+        all_transitions.clone(),
+        false,
+    );
+    row("evaluator", "declare_subscriber", everything.clone(), false);
+    // The monitor: telemetry in, nothing out.
+    for key in [&all_metrics, &all_status, &all_reports] {
+        row("monitor", "declare_subscriber", key.clone(), true);
+    }
+    row(
+        "monitor",
+        "declare_liveliness_subscriber",
+        all_alive.clone(),
+        true,
+    );
+    row("monitor", "liveliness_query", all_alive.clone(), true);
+    for key in [
+        &weights,
+        &control,
+        &ack(0),
+        &all_transitions,
+        &transitions(0),
+        &everything,
+    ] {
+        row("monitor", "declare_subscriber", key.clone(), false);
+    }
+    row("monitor", "query", weights.clone(), false);
+    row("monitor", "put", metrics(Role::Monitor, 0), false);
+    row("monitor", "put", weights.clone(), false);
+    row("monitor", "reply", weights.clone(), false);
+    row(
+        "monitor",
+        "liveliness_token",
+        alive(Role::Monitor, 0),
+        false,
+    );
+    // Another run: nothing at all.
+    let other_run = RunId::new("other").unwrap();
+    for u in &want {
+        row(
+            u,
+            "put",
+            keys::metrics(&other_run, SenderId::new(Role::Learner, 0))
+                .key_expr()
+                .to_string(),
             false,
-        ),
-        ("evaluator", "put", report.clone(), true),
-        ("evaluator", "put", metrics(Role::Evaluator, 0), true),
-        (
-            "evaluator",
-            "liveliness_token",
-            keys::alive(&run, member(Role::Evaluator, 0)),
-            true,
-        ),
-        ("evaluator", "put", weights.clone(), false),
-        ("evaluator", "put", transitions.clone(), false),
-        ("evaluator", "reply", weights.clone(), false),
-        ("monitor", "put", metrics(Role::Monitor, 0), false),
-        ("monitor", "put", weights.clone(), false),
-        ("monitor", "reply", weights.clone(), false),
-        (
-            "monitor",
-            "liveliness_token",
-            keys::alive(&run, member(Role::Monitor, 0)),
-            false,
-        ),
-    ];
-    // Everyone may subscribe, query the latest values and watch liveliness.
-    let mut table = table;
-    for u in ["learner", "actor", "evaluator", "monitor"] {
-        table.push((
+        );
+        row(
             u,
             "declare_subscriber",
-            keys::all_metrics(&run).key_expr().to_string(),
-            true,
-        ));
-        table.push((u, "declare_subscriber", weights.clone(), true));
-        table.push((u, "query", weights.clone(), true));
-        table.push((
+            keys::weights(&other_run).key_expr().to_string(),
+            false,
+        );
+        row(
             u,
             "declare_liveliness_subscriber",
-            keys::all_alive(&run),
-            true,
-        ));
+            keys::all_alive(&other_run),
+            false,
+        );
     }
     let wrong: Vec<String> = table
         .iter()
-        .filter(|(u, m, k, want)| allowed(u, m, k) != *want)
+        .filter(|(u, m, k, want)| allowed(&rights, u, m, k) != *want)
         .map(|(u, m, k, want)| format!("{u} {m} {k}: expected allowed = {want}"))
         .collect();
     assert!(wrong.is_empty(), "{wrong:#?}");
+}
+
+#[test]
+fn the_access_control_is_least_privilege_by_construction() {
+    let run = deployed_run_id();
+    let c = zenoh::Config::from_file(deploy().join("router.json5")).unwrap();
+    let acl = json(&c, "access_control");
+    // Every rule names the deployed run's keys, never `fsrl/**` or `fsrl/*/...` (any run).
+    let prefix = format!("fsrl/{run}/");
+    for r in acl["rules"].as_array().unwrap() {
+        for ke in r["key_exprs"].as_array().unwrap() {
+            let ke = ke.as_str().unwrap();
+            assert!(
+                ke.starts_with(&prefix),
+                "rule {}: {ke} is not of run {run}",
+                r["id"]
+            );
+        }
+    }
+    let rights = ingress_rights();
+    let users: Vec<String> = rights.keys().cloned().collect();
+    // No key of the run may be subscribed to by every user (the data topics least of all).
+    let everyone =
+        |message: &str, key: &str| users.iter().all(|u| allowed(&rights, u, message, key));
+    let r = RunId::new(&run).unwrap();
+    let every_topic = [
+        keys::run_prefix(&r),
+        keys::all_transitions(&r).key_expr().to_string(),
+        keys::transitions(&r, 0).key_expr().to_string(),
+        keys::weights(&r).key_expr().to_string(),
+        keys::control(&r).key_expr().to_string(),
+        keys::ack(&r, 0).key_expr().to_string(),
+        keys::all_eval_reports(&r).key_expr().to_string(),
+        keys::all_metrics(&r).key_expr().to_string(),
+        keys::all_status(&r).key_expr().to_string(),
+    ];
+    for key in &every_topic {
+        assert!(
+            !everyone("declare_subscriber", key),
+            "everyone may subscribe to {key}"
+        );
+        assert!(!everyone("query", key), "everyone may query {key}");
+    }
+    for (user, messages) in &rights {
+        let keys_of = |m: &str| messages.get(m).cloned().unwrap_or_default();
+        // The monitor publishes nothing.
+        if user == "monitor" {
+            for m in PUBLISHING {
+                assert!(keys_of(m).is_empty(), "monitor may {m} on {:?}", keys_of(m));
+            }
+        }
+        // An actor publishes on concrete keys of its own, only its own transitions key among
+        // the transitions, and no wildcard beyond its liveliness instance.
+        if let Some(id) = user.strip_prefix("actor-") {
+            let own = format!("fsrl/{run}/transitions/{id}");
+            let puts = keys_of("put");
+            assert!(
+                puts.iter().all(|k| !k.contains('*')),
+                "{user} puts on {puts:?}"
+            );
+            let transition_puts: Vec<&String> = puts
+                .iter()
+                .filter(|k| k.starts_with(&format!("fsrl/{run}/transitions/")))
+                .collect();
+            assert_eq!(transition_puts, [&own], "{user}");
+            assert!(
+                keys_of("delete").is_empty() && keys_of("reply").is_empty(),
+                "{user}"
+            );
+            assert!(keys_of("declare_queryable").is_empty(), "{user}");
+            assert_eq!(
+                keys_of("liveliness_token"),
+                [format!("fsrl/{run}/alive/actor/{id}/*")],
+                "{user}"
+            );
+            let subs = keys_of("declare_subscriber");
+            assert!(
+                subs.iter()
+                    .all(|k| !k.contains("transitions") && !k.contains("**")),
+                "{user} subscribes to {subs:?}"
+            );
+        }
+    }
+    // The users are exactly those make-test-ca.sh makes by default.
+    let etc = etc_fsrl();
+    let dict = std::fs::read_to_string(etc.path().join("router-users.txt")).unwrap();
+    let mut made: Vec<String> = dict
+        .lines()
+        .map(|l| l.split_once(':').unwrap().0.to_string())
+        .collect();
+    made.sort();
+    assert_eq!(made, users);
+    for u in &users {
+        assert!(
+            etc.path().join(format!("{u}.password")).is_file(),
+            "{u}.password"
+        );
+    }
+    assert!(
+        !etc.path().join("actor.password").exists(),
+        "no shared actor password any more"
+    );
 }
 
 /// `[section] key=value` lines of a unit file.
@@ -524,16 +862,20 @@ fn the_systemd_units_start_each_role_with_a_deployed_config() {
             one("Unit", "After").contains("network-online.target"),
             "{name}"
         );
-        assert_eq!(one("Service", "User"), "fsrl", "{name}");
+        let role = name
+            .trim_start_matches("fsrl-")
+            .trim_end_matches(".service")
+            .trim_end_matches('@');
+        // One system user per role: none can read another's secrets or write its state.
+        let user = format!("fsrl-{role}");
+        assert_eq!(one("Service", "User"), user, "{name}");
+        assert_eq!(one("Service", "Group"), user, "{name}");
+        assert_eq!(one("Service", "UMask"), "0077", "{name}");
         assert_eq!(one("Service", "Restart"), "on-failure", "{name}");
         assert_eq!(one("Install", "WantedBy"), "multi-user.target", "{name}");
         let exec = one("Service", "ExecStart");
         let argv: Vec<&str> = exec.split_whitespace().collect();
         assert_eq!(argv[0], "/usr/local/bin/fsrl", "{name}");
-        let role = name
-            .trim_start_matches("fsrl-")
-            .trim_end_matches(".service")
-            .trim_end_matches('@');
         assert_eq!(argv[1], role, "{name} must run `fsrl {role}`");
         let config = argv
             .iter()
@@ -543,21 +885,58 @@ fn the_systemd_units_start_each_role_with_a_deployed_config() {
         let file = config
             .strip_prefix("/etc/fsrl/")
             .unwrap_or_else(|| panic!("{name}: config {config} outside /etc/fsrl"));
-        assert!(
-            deploy().join(file).is_file(),
-            "{name} names /etc/fsrl/{file}, which deploy/ does not provide"
-        );
-        if name.contains('@') {
+        // The config as installed for instance 0: the actor's is made from
+        // cluster-actor.toml (README), the others are deploy/'s files as they are.
+        let (file, config_text) = if name.contains('@') {
             assert!(
                 exec.contains("--id %i"),
                 "{name}: the instance must be the actor id"
             );
-        }
-        if role != "router" {
+            assert_eq!(file, "cluster-actor-%i.toml", "{name}");
+            ("cluster-actor.toml".to_string(), actor_config_text(0))
+        } else {
+            let text = std::fs::read_to_string(deploy().join(file)).unwrap_or_else(|_| {
+                panic!("{name} names /etc/fsrl/{file}, which deploy/ does not provide")
+            });
+            (file.to_string(), text)
+        };
+        let instance = |s: &str| s.replace("%i", "0");
+        if role == "router" {
             assert!(
-                one("Service", "StateDirectory") == "fsrl",
-                "{name}: run state lives in /var/lib/fsrl"
+                !f.contains_key(&("Service".into(), "StateDirectory".into())),
+                "{name}"
             );
+        } else {
+            // Its own state directory (the learner's is nobody else's to write).
+            let state = one("Service", "StateDirectory");
+            assert_eq!(state, format!("fsrl/{role}"), "{name}");
+            assert_eq!(
+                one("Service", "WorkingDirectory"),
+                format!("/var/lib/{state}"),
+                "{name}"
+            );
+            let t: toml::Table = config_text.parse().unwrap();
+            for (section, key) in [("learner", "run_dir"), ("evaluator", "out_dir")] {
+                if let Some(dir) = t.get(section).and_then(|s| s.get(key)) {
+                    let dir = dir.as_str().unwrap();
+                    assert!(
+                        dir.starts_with(&format!("/var/lib/{state}/")),
+                        "{file}: {dir}"
+                    );
+                }
+            }
+            // The password as a systemd credential named as the config's password file (a
+            // relative name: looked up in $CREDENTIALS_DIRECTORY first), from a root-only file.
+            let password = t["transport"]["zenoh"]["auth"]["password_file"]
+                .as_str()
+                .unwrap()
+                .to_string();
+            assert!(
+                !password.contains('/'),
+                "{file}: {password} must be a plain file name"
+            );
+            let cred = instance(&one("Service", "LoadCredential"));
+            assert_eq!(cred, format!("{password}:/etc/fsrl/{password}"), "{name}");
         }
         // systemd's own parser, where it is installed: no unknown keys or sections.
         if analyze {

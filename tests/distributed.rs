@@ -545,3 +545,127 @@ fn one_command_local_training_runs_every_process_and_leaves_a_run_directory() {
     assert!(!o.status.success());
     assert!(String::from_utf8_lossy(&o.stderr).contains("--resume"));
 }
+
+/// An honest episode of the test runs' setting (env2-visible) as actor `episode`'s batch.
+fn honest_batch(episode: u64, seed: u64) -> proto::TransitionBatch {
+    let cfg = sim::SimConfig::default();
+    let mut env = sim::Env::new(cfg, "env2-visible".parse().unwrap(), 0).unwrap();
+    let ep = policy::rollout::rollout(
+        &mut env,
+        seed,
+        policy::rollout::Behaviour::Orca {
+            safety_space_m: 0.0,
+        },
+    )
+    .unwrap();
+    policy::wire::to_batch(&ep, episode, env.action_set().len() as u16).unwrap()
+}
+
+/// Publishes `batch` on `key_actor`'s transitions key with a header naming `claimed`.
+fn forge(
+    t: &Transport,
+    publishers: &mut BTreeMap<u32, transport::Publisher<proto::TransitionBatch>>,
+    key_actor: u32,
+    claimed: SenderId,
+    batch: &proto::TransitionBatch,
+) {
+    let p = publishers
+        .entry(key_actor)
+        .or_insert_with(|| t.publisher(&keys::transitions(t.run(), key_actor)).unwrap());
+    let header = proto::Header::new::<proto::TransitionBatch>(t.run().clone(), claimed, 0, 1);
+    p.publish_raw(proto::encode(&header, batch).unwrap())
+        .unwrap();
+}
+
+/// Hostile but well-formed input from an authenticated client (issue 16, items 1–3 and 5): an
+/// episode sent during imitation, another actor's id with a huge episode index, a reward of
+/// 1e30, a position of 3e38, a header that contradicts its key, and 4097 fresh actor ids. The
+/// learner stays up and counts each, the honest actor keeps progressing, and nothing poisoned
+/// reaches the checkpoint.
+#[test]
+fn hostile_but_well_formed_episodes_neither_stop_nor_poison_the_learner() {
+    let run = Run::new(
+        "hostile",
+        "zenoh",
+        "[train]\ncheckpoint_every_episodes = 0\n",
+    );
+    // A longer imitation, so the test can send during it.
+    std::fs::write(
+        run.config(),
+        std::fs::read_to_string(run.config())
+            .unwrap()
+            .replace("episodes = 6\nepochs = 1", "episodes = 30\nepochs = 30"),
+    )
+    .unwrap();
+    let mut procs = Procs(vec![run.spawn("learner", &["--rl-episodes", "25"])]);
+    let mon = run.monitor(4);
+    let mut w = Watch::new(&mon);
+    let evil = {
+        let mut cfg = TransportConfig::new(
+            RunId::new(run.id.clone()).unwrap(),
+            SenderId::new(Role::Actor, 9),
+        );
+        cfg.zenoh = ZenohConfig::peer(vec!["tcp/127.0.0.1:0".into()], vec![run.endpoint()]);
+        Transport::open(cfg).unwrap()
+    };
+    let mut pubs = BTreeMap::new();
+    let good = honest_batch(0, 11);
+    // 1. During imitation: refused and counted, not queued.
+    w.until("imitation to start", &run, |w| {
+        w.value(LEARNER, "imitation_epochs").is_some() || w.value(LEARNER, "demo_target").is_some()
+    });
+    for _ in 0..3 {
+        forge(&evil, &mut pubs, 9, SenderId::actor(9), &good);
+    }
+    procs.0.push(run.spawn("actor", &["--id", "0"]));
+    w.until("two honest episodes", &run, |w| {
+        w.value(LEARNER, "episodes").unwrap_or(0.0) >= 2.0
+    });
+    // 2. Actor 0's id with a huge episode index (on actor 0's own key).
+    let mut huge = honest_batch(u64::MAX - 1, 12);
+    huge.episode = u64::MAX - 1;
+    forge(&evil, &mut pubs, 0, SenderId::actor(0), &huge);
+    // 3. A reward of 1e30 and a position of 3e38, as actor 9's next episode.
+    let mut rich = good.clone();
+    rich.rewards[4] = 1e30; // the first step's total
+    forge(&evil, &mut pubs, 9, SenderId::actor(9), &rich);
+    let mut far = good.clone();
+    far.robot_states[0] = 3e38;
+    forge(&evil, &mut pubs, 9, SenderId::actor(9), &far);
+    // 4. A header naming actor 0 on actor 9's key.
+    forge(&evil, &mut pubs, 9, SenderId::actor(0), &good);
+    // 5. 4097 fresh ids, each with an episode the learner does not expect from a newcomer.
+    let mut late = good.clone();
+    late.episode = 1;
+    for id in 1000..1000 + 4097 {
+        forge(&evil, &mut pubs, id, SenderId::actor(id), &late);
+    }
+    let before = w.value(LEARNER, "episodes").unwrap();
+    w.until("the hostile input to be counted", &run, |w| {
+        w.value(LEARNER, "out_of_order_episodes").unwrap_or(0.0) >= 4098.0
+            && w.value(LEARNER, "rejected_episodes").unwrap_or(0.0) >= 2.0
+            && w.value(LEARNER, "rejected_messages").unwrap_or(0.0) >= 1.0
+    });
+    w.until("honest training to go on", &run, |w| {
+        w.value(LEARNER, "episodes").unwrap_or(0.0) >= before + 2.0
+    });
+    let status = wait_exit(&mut procs.0[0], "the learner", &run);
+    assert!(status.success(), "learner failed\n{}", run.logs());
+    let loaded = learner::checkpoint::load(&run.run_dir().join("checkpoints/latest.ckpt")).unwrap();
+    assert_eq!(loaded.core.counters().rl_episodes, 25);
+    // Only the honest actor has state, and its count is its real one.
+    assert_eq!(
+        loaded.run.accepted_below,
+        BTreeMap::from([(0u32, 25u64)]),
+        "{}",
+        run.logs()
+    );
+    let log = run.logs();
+    assert!(
+        log.contains("during imitation"),
+        "the imitation refusal is logged\n{log}"
+    );
+    // Rate-limited: 4097 refusals make a handful of lines, not thousands.
+    let lines = log.matches("while 0 is due").count();
+    assert!(lines <= 14, "{lines} log lines for 4097 refusals");
+}

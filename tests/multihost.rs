@@ -4,8 +4,10 @@
 //! adapted to the namespaces. It checks that training runs across the hosts, that an actor host
 //! whose link goes down is seen to leave while training goes on, that it rejoins without a
 //! restart when the link comes back, and that neither a client without credentials nor one
-//! with the actor's credentials can get weights to the actors (and, as a control, that the
-//! same rogue message with the learner's credentials does arrive).
+//! with an actor's credentials can get weights to the actors (and, as a control, that the
+//! same rogue message with the learner's credentials does arrive). Each actor runs with its
+//! own user (`actor-<id>`, the README's per-actor copy of `cluster-actor.toml`), the router
+//! with `router.json5`'s access control changed to the test's run id as the README says.
 //!
 //! Needs root and `ip netns` (CI runs as root); elsewhere it prints why it skips. Everything
 //! it makes — namespaces, veths, processes, temporary files — is removed at the end, also on
@@ -19,7 +21,9 @@ mod shm_support;
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
-use mh::{adapt_deploy_config, table, Hosts, Observer, Procs, Seen, ROGUE_VERSION};
+use mh::{
+    adapt_actor_config, adapt_deploy_config, table, Hosts, Observer, Procs, Seen, ROGUE_VERSION,
+};
 use multihost_support as mh;
 use shm_support::ShmSnapshot;
 
@@ -60,9 +64,12 @@ struct Configs {
     evaluator: PathBuf,
     actors: [PathBuf; 2],
     monitor: PathBuf,
+    /// The evaluator's credentials, for the observer's view of the weights (the monitor's
+    /// credentials may not read them).
+    weights_reader: PathBuf,
     /// The actor host's config without credentials (TLS only).
     no_credentials: PathBuf,
-    /// The actor's credentials on actor host 1.
+    /// Actor 0's credentials on actor host 1.
     actor_credentials: PathBuf,
     /// The learner's credentials on actor host 1 (the control).
     learner_credentials: PathBuf,
@@ -126,13 +133,16 @@ fn write_configs(dir: &Path, run_id: &str) -> Configs {
         e.insert("threads".into(), 1.into());
         e.insert("out_dir".into(), eval_dir.clone().into());
     });
-    let actor = |k: usize, out: &str| {
-        adapt_deploy_config("cluster-actor.toml", dir, out, |t| run(t, remote(k)))
-    };
+    let actor = |k: usize, out: &str| adapt_actor_config(k as u32, dir, out, |t| run(t, remote(k)));
     let actors = [actor(0, "actor-a1.toml"), actor(1, "actor-a2.toml")];
     let monitor = adapt_deploy_config("cluster-monitor.toml", dir, "monitor.toml", |t| {
         run(t, local.clone())
     });
+    let weights_reader =
+        adapt_deploy_config("cluster-evaluator.toml", dir, "weights-reader.toml", |t| {
+            run(t, local.clone());
+            t.remove("evaluator");
+        });
     let no_credentials =
         adapt_deploy_config("cluster-actor.toml", dir, "rogue-anonymous.toml", |t| {
             run(t, remote(0));
@@ -149,6 +159,7 @@ fn write_configs(dir: &Path, run_id: &str) -> Configs {
         evaluator,
         actors,
         monitor,
+        weights_reader,
         no_credentials,
         actor_credentials,
         learner_credentials,
@@ -192,7 +203,7 @@ impl Cluster {
     }
 
     fn start_router(&mut self) {
-        let args = mh::router_args(self.dir.path(), &[]);
+        let args = mh::router_args_for_run(self.dir.path(), &self.run_id, &[]);
         let args: Vec<&str> = args.iter().map(String::as_str).collect();
         let hub = self.hosts.hub.clone();
         self.fsrl("router", &hub, &args);
@@ -290,7 +301,15 @@ fn training_across_emulated_hosts_survives_a_link_outage_and_refuses_rogue_weigh
     );
     let obs_log = c.log("observer");
     let monitor = c.configs.monitor.clone();
-    let obs = Observer::start(&mut c.procs, &hub, &helper_args(), &monitor, &obs_log);
+    let weights_reader = c.configs.weights_reader.clone();
+    let obs = Observer::start_with(
+        &mut c.procs,
+        &hub,
+        &helper_args(),
+        &monitor,
+        Some(&weights_reader),
+        &obs_log,
+    );
 
     let wait = |c: &mut Cluster, what: &str, pred: &mut dyn FnMut(&Seen) -> bool| {
         let r = obs.wait_until(STEP, |s| pred(s));
@@ -354,7 +373,13 @@ fn training_across_emulated_hosts_survives_a_link_outage_and_refuses_rogue_weigh
     let member0 = obs
         .with(|s| actor_members(s, "joined", 0))
         .pop()
-        .expect("actor 0 joined");
+        .unwrap_or_else(|| {
+            panic!(
+                "the observer saw no actor 0 join: {:?}\n{}",
+                obs.with(|s| s.membership.clone()),
+                c.logs()
+            )
+        });
 
     // 2. Actor host 1's link goes down: the learner sees actor 0 leave and goes on with actor 1.
     c.hosts.set_actor_link(0, false).unwrap();
@@ -402,7 +427,7 @@ fn training_across_emulated_hosts_survives_a_link_outage_and_refuses_rogue_weigh
         "a client without credentials got a session:\n{out}\n{}",
         c.logs()
     );
-    // With the actor's credentials the session opens (its allowed marker metrics arrive), but
+    // With actor 0's credentials the session opens (its allowed marker metrics arrive), but
     // the weights it publishes never reach anyone.
     let markers_before = obs.with(|s| s.rogue_markers);
     let out = c.rogue("rogue-actor", &c.configs.actor_credentials.clone());

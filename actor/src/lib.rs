@@ -52,6 +52,8 @@ pub struct ActorStats {
     pub resent: u64,
     pub acked: u64,
     pub weights_version: u64,
+    /// Weights messages that did not fit this run's network (skipped).
+    pub bad_weights: u64,
 }
 
 struct State {
@@ -60,6 +62,62 @@ struct State {
     next_episode: Option<u64>,
     learner: Option<u64>,
     net: Option<(u64, ValueNet)>,
+    /// Header of the last weights message tried (loaded or refused): the newest message on the
+    /// latest-value topic wins, whatever its version number, so a learner restarted from an
+    /// older checkpoint (lower versions) is followed and no stale high version pins the actor.
+    weights_tried: Option<proto::Header>,
+    /// When the outbox is re-sent if no acknowledgement has moved meanwhile.
+    resend_at: Option<Instant>,
+}
+
+/// How long the actor waits for its oldest unacknowledged episode to be acknowledged before it
+/// re-sends the outbox (the learner refuses episodes past a gap, so a lost one must come again).
+const RESEND_AFTER: Duration = Duration::from_secs(5);
+
+impl State {
+    /// Re-sends every unacknowledged episode, oldest first.
+    fn resend(
+        &mut self,
+        publisher: &transport::Publisher<TransitionBatch>,
+        stats: &mut ActorStats,
+    ) -> Result<(), TransportError> {
+        for (ep, batch) in &self.outbox {
+            let v = self.outbox_versions.get(ep).copied().unwrap_or(0);
+            publisher.publish(v, batch)?;
+            stats.resent += 1;
+        }
+        self.resend_at = (!self.outbox.is_empty()).then(|| Instant::now() + RESEND_AFTER);
+        Ok(())
+    }
+
+    /// Applies membership events: a (new) learner gets every unacknowledged episode again.
+    fn on_membership(
+        &mut self,
+        alive: &transport::AliveWatcher,
+        publisher: &transport::Publisher<TransitionBatch>,
+        stats: &mut ActorStats,
+        id: u32,
+    ) -> Result<(), TransportError> {
+        while let Some(ev) = alive.recv_timeout(Duration::ZERO)? {
+            match ev {
+                AliveEvent::Joined(m)
+                    if m.sender.role == Role::Learner && self.learner != Some(m.instance) =>
+                {
+                    tracing::info!(actor = id, learner = %m, unacked = self.outbox.len(), "learner joined");
+                    self.learner = Some(m.instance);
+                    self.resend(publisher, stats)?;
+                }
+                AliveEvent::Left(m)
+                    if m.sender.role == Role::Learner && self.learner == Some(m.instance) =>
+                {
+                    tracing::warn!(actor = id, learner = %m, "learner left; holding off");
+                    self.learner = None;
+                }
+                _ => {}
+            }
+        }
+        Ok(())
+    }
 }
 
 /// Runs actor `id` until the learner finishes the run or `stop` is set.
@@ -96,6 +154,8 @@ pub fn run(
         next_episode: None,
         learner: None,
         net: None,
+        weights_tried: None,
+        resend_at: None,
     };
     let mut stats = ActorStats::default();
     let start = Instant::now();
@@ -107,45 +167,43 @@ pub fn run(
         if stop.load(Ordering::SeqCst) {
             return Ok(ActorExit::Stopped);
         }
-        // Membership: a (new) learner gets every unacknowledged episode again.
-        while let Some(ev) = alive.recv_timeout(Duration::ZERO)? {
-            match ev {
-                AliveEvent::Joined(m)
-                    if m.sender.role == Role::Learner && st.learner != Some(m.instance) =>
-                {
-                    tracing::info!(actor = id, learner = %m, unacked = st.outbox.len(), "learner joined");
-                    st.learner = Some(m.instance);
-                    for (ep, batch) in &st.outbox {
-                        let v = st.outbox_versions.get(ep).copied().unwrap_or(0);
-                        publisher.publish(v, batch)?;
-                        stats.resent += 1;
-                    }
-                }
-                AliveEvent::Left(m)
-                    if m.sender.role == Role::Learner && st.learner == Some(m.instance) =>
-                {
-                    tracing::warn!(actor = id, learner = %m, "learner left; holding off");
-                    st.learner = None;
-                }
-                _ => {}
-            }
-        }
+        st.on_membership(&alive, &publisher, &mut stats, id)?;
         // Acknowledgements: drop what the learner holds; learn where to continue.
         while let Some(msg) = acks.try_recv()? {
             apply_ack(&mut st, &mut stats, id, &msg.body);
         }
-        // Newest weights.
+        // Newest weights (each message tried once).
         if let Some(w) = weights.latest()? {
-            let version = w.body.version;
-            if st.net.as_ref().is_none_or(|(v, _)| *v < version) {
+            if st.weights_tried.as_ref() != Some(&w.header) {
+                st.weights_tried = Some(w.header.clone());
+                let version = w.body.version;
                 match net_from_weights(&w.body, &net_cfg) {
                     Ok(net) => {
                         st.net = Some((version, net));
                         stats.weights_version = version;
                     }
-                    Err(e) => tracing::warn!(actor = id, version, "ignoring weights: {e}"),
+                    Err(e) => {
+                        stats.bad_weights += 1;
+                        if stats.bad_weights.is_power_of_two() {
+                            tracing::warn!(
+                                actor = id,
+                                version,
+                                count = stats.bad_weights,
+                                "ignoring weights: {e}"
+                            );
+                        }
+                    }
                 }
             }
+        }
+        // Nothing acknowledged for a while: something was lost in flight; send it again.
+        if st.learner.is_some() && st.resend_at.is_some_and(|t| Instant::now() >= t) {
+            tracing::debug!(
+                actor = id,
+                unacked = st.outbox.len(),
+                "re-sending the outbox"
+            );
+            st.resend(&publisher, &mut stats)?;
         }
         let ctl = control.latest()?;
         if let Some(c) = &ctl {
@@ -200,9 +258,14 @@ pub fn run(
         .map_err(|e| ActorError::Sim(e.to_string()))?;
         let batch =
             to_batch(&data, episode, n_actions).map_err(|e| ActorError::Sim(e.to_string()))?;
-        publisher.publish(*version, &batch)?;
+        let version = *version;
+        // A learner that joined during the episode gets the outbox first, in order.
+        st.on_membership(&alive, &publisher, &mut stats, id)?;
+        publisher.publish(version, &batch)?;
         st.outbox.insert(episode, batch);
-        st.outbox_versions.insert(episode, *version);
+        st.outbox_versions.insert(episode, version);
+        st.resend_at
+            .get_or_insert_with(|| Instant::now() + RESEND_AFTER);
         st.next_episode = Some(episode + 1);
         stats.episodes += 1;
         stats.env_steps += data.steps() as u64;
@@ -218,6 +281,10 @@ fn apply_ack(st: &mut State, stats: &mut ActorStats, id: u32, ack: &proto::Ack) 
     st.outbox.retain(|ep, _| !ack.covers(*ep));
     st.outbox_versions.retain(|ep, _| !ack.covers(*ep));
     stats.acked += (before - st.outbox.len()) as u64;
+    if st.outbox.len() < before || st.outbox.is_empty() {
+        // Progress: the oldest unacknowledged episode gets a fresh grace period.
+        st.resend_at = (!st.outbox.is_empty()).then(|| Instant::now() + RESEND_AFTER);
+    }
     let next = st.next_episode.get_or_insert(ack.acked_below);
     *next = (*next).max(ack.acked_below);
 }
@@ -241,6 +308,7 @@ fn publish_metrics(
         ("episodes_acked", s.acked as f64),
         ("episodes_unacked", unacked as f64),
         ("weights_version", s.weights_version as f64),
+        ("bad_weights", s.bad_weights as f64),
     ] {
         m.values.insert(k.to_string(), v);
     }

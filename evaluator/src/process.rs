@@ -129,13 +129,25 @@ fn write(
     };
     std::fs::create_dir_all(&opts.out_dir).map_err(err)?;
     let json = serde_json::to_string_pretty(r).map_err(|e| ProcessError::Other(e.to_string()))?;
-    std::fs::write(opts.out_dir.join(format!("{stem}.json")), json).map_err(err)?;
-    std::fs::write(
-        opts.out_dir.join(format!("{stem}.md")),
-        markdown(r, method, version),
+    replace_file(&opts.out_dir.join(format!("{stem}.json")), json.as_bytes()).map_err(err)?;
+    replace_file(
+        &opts.out_dir.join(format!("{stem}.md")),
+        markdown(r, method, version).as_bytes(),
     )
     .map_err(err)?;
     Ok(())
+}
+
+/// Writes `path` whole or not at all: a synced temporary file in the same directory renamed
+/// over it (a reader never sees half a report; a failed write leaves no temporary behind).
+fn replace_file(path: &std::path::Path, bytes: &[u8]) -> std::io::Result<()> {
+    use std::io::Write;
+    let dir = path.parent().unwrap_or(std::path::Path::new("."));
+    let mut tmp = tempfile::NamedTempFile::new_in(dir)?;
+    tmp.write_all(bytes)?;
+    tmp.as_file().sync_all()?;
+    tmp.persist(path).map_err(|e| e.error)?;
+    std::fs::File::open(dir)?.sync_all()
 }
 
 /// One point of the learning curve (see [`validate`]).
@@ -261,6 +273,9 @@ pub fn run(
     let mut next_val_due = 0u64;
     let mut validated: Option<u64> = None;
     let started = std::time::Instant::now();
+    // Weights that do not fit this run's network (counted, skipped; never fatal until the end).
+    let mut bad_weights = 0u64;
+    let mut unusable: Option<u64> = None;
     loop {
         if stop.load(Ordering::SeqCst) {
             return Ok(EvaluatorExit::Stopped);
@@ -283,6 +298,29 @@ pub fn run(
             && version >= il_epochs
             && validated != Some(version)
             && (trained >= next_val_due || finished);
+        if (val_due || due || finished) && unusable == Some(version) {
+            if finished {
+                return Err(ProcessError::Other(format!(
+                    "the run's final weights (version {version}) are unusable; see the warnings"
+                )));
+            }
+            let _ = weights.next(Duration::from_millis(200))?;
+            continue;
+        }
+        if (val_due || due || finished) && unusable != Some(version) {
+            if let Err(e) = net_from_weights(&w.body, &net_cfg) {
+                // Skip and count: a later version may be fine (an actor does the same).
+                bad_weights += 1;
+                unusable = Some(version);
+                if bad_weights.is_power_of_two() {
+                    tracing::warn!(version, bad_weights, "skipping weights it cannot use: {e}");
+                }
+                let mut m = proto::Metrics::default();
+                m.values.insert("bad_weights".into(), bad_weights as f64);
+                let _ = metrics.publish(version, &m);
+                continue;
+            }
+        }
         if val_due {
             let net = net_from_weights(&w.body, &net_cfg).map_err(ProcessError::Other)?;
             let point = validate(spec, &net, opts.threads, trained, started.elapsed())?;

@@ -4,8 +4,13 @@
 //!
 //! File layout (`frame.rs`): `b"FSRLCKPT"`, format version (u32 LE), payload length
 //! (u64 LE), payload (MessagePack, field names included), CRC-32 of the payload (u32 LE). Files
-//! are written to a temporary name, synced and renamed, so a crash never leaves a half-written
-//! checkpoint.
+//! are written to a temporary name (`<name>.tmp`), synced, renamed, and the directory is synced
+//! (`frame.rs`): when [`save`] returns `Ok` the checkpoint survives a power loss, and a
+//! crash at any point leaves the previous checkpoint whole. A failed write (a full disk)
+//! removes the temporary file.
+//!
+//! A learner resumes a checkpoint only if it is of the same run: [`Loaded::check_identity`]
+//! compares run id, method, setting and seed with the configuration.
 
 use std::path::{Path, PathBuf};
 
@@ -23,6 +28,7 @@ use sim::SimConfig;
 use crate::core::{Counters, LearnerCore};
 use crate::frame::{self, FrameError};
 use crate::replay::{Columns, Replay};
+use crate::store::Probe;
 
 pub(crate) const MAGIC: &[u8; 8] = b"FSRLCKPT";
 /// Bumped whenever the payload changes incompatibly.
@@ -56,6 +62,8 @@ pub enum CheckpointError {
     Decode { path: PathBuf, reason: String },
     #[error("{path}: inconsistent checkpoint: {reason}")]
     Mismatch { path: PathBuf, reason: String },
+    #[error("{path}: checkpoint of another run ({differences}); refusing to resume it")]
+    OtherRun { path: PathBuf, differences: String },
 }
 
 /// What a run is, besides the learner's state.
@@ -74,6 +82,63 @@ pub struct Loaded {
     pub core: LearnerCore,
     pub sim: SimConfig,
     pub run: RunInfo,
+}
+
+/// What a learner is configured to run; a checkpoint it resumes must be of the same run.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct RunIdentity {
+    pub run_id: String,
+    pub method: Method,
+    pub setting: String,
+    pub run_seed: u64,
+}
+
+impl Loaded {
+    /// `Ok` if this checkpoint (read from `path`) is of the run `expected`; otherwise an error
+    /// naming every field that differs, with both values.
+    pub fn check_identity(
+        &self,
+        path: &Path,
+        expected: &RunIdentity,
+    ) -> Result<(), CheckpointError> {
+        let mut differences = Vec::new();
+        let mut differ = |what: &str, found: String, wanted: String| {
+            if found != wanted {
+                differences.push(format!(
+                    "{what} `{found}` in the checkpoint, `{wanted}` configured"
+                ));
+            }
+        };
+        differ("run id", self.run.run_id.clone(), expected.run_id.clone());
+        differ(
+            "method",
+            self.core.method().name().into(),
+            expected.method.name().into(),
+        );
+        differ(
+            "setting",
+            self.run.setting.clone(),
+            expected.setting.clone(),
+        );
+        differ(
+            "seed",
+            self.run.run_seed.to_string(),
+            expected.run_seed.to_string(),
+        );
+        if differences.is_empty() {
+            Ok(())
+        } else {
+            Err(CheckpointError::OtherRun {
+                path: path.to_path_buf(),
+                differences: differences.join("; "),
+            })
+        }
+    }
+}
+
+/// Where [`save`] writes before renaming to `path`.
+pub(crate) fn tmp_path(path: &Path) -> PathBuf {
+    path.with_extension("tmp")
 }
 
 /// A network's description as checkpoints and model files write it.
@@ -242,12 +307,23 @@ struct Payload {
     replay: ReplayRec,
 }
 
-/// Writes the whole learner state to `path` (atomically).
+/// Writes the whole learner state to `path`, atomically and durably (module docs).
 pub fn save(
     path: &Path,
     core: &LearnerCore,
     sim: &SimConfig,
     run: &RunInfo,
+) -> Result<(), CheckpointError> {
+    save_with(path, core, sim, run, &Probe::none())
+}
+
+/// [`save`], reporting every file-system step to `probe`.
+pub fn save_with(
+    path: &Path,
+    core: &LearnerCore,
+    sim: &SimConfig,
+    run: &RunInfo,
+    probe: &Probe,
 ) -> Result<(), CheckpointError> {
     let t = core.trainer();
     let adam = t.adam();
@@ -295,14 +371,8 @@ pub fn save(
         path: path.to_path_buf(),
         reason: e.to_string(),
     })?;
-    frame::write_atomic(
-        path,
-        &path.with_extension("tmp"),
-        MAGIC,
-        FORMAT_VERSION,
-        &body,
-    )
-    .map_err(|(path, source)| CheckpointError::Io { path, source })
+    frame::write_atomic(path, &tmp_path(path), MAGIC, FORMAT_VERSION, &body, probe)
+        .map_err(|(path, source)| CheckpointError::Io { path, source })
 }
 
 /// Reads a checkpoint written by [`save`].

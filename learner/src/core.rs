@@ -52,6 +52,20 @@ pub struct Counters {
     pub policy_version: u64,
 }
 
+/// An episode that passed every check, with its features, returns and (during RL) value
+/// targets computed: [`LearnerCore::commit_episode`] stores it without failing.
+#[derive(Debug)]
+pub struct PreparedEpisode {
+    demonstration: bool,
+    keep: bool,
+    steps: usize,
+    discount: f32,
+    feats: Vec<f32>,
+    rewards: Vec<f32>,
+    returns: Vec<f32>,
+    targets: Vec<f32>,
+}
+
 /// Replay, trainer and schedule of one training run.
 pub struct LearnerCore {
     method: Method,
@@ -69,6 +83,7 @@ pub struct LearnerCore {
     target_buf: Vec<f32>,
     /// The cached targets predate the target network (refreshed before the next update).
     targets_stale: bool,
+    skipped_batches: u64,
 }
 
 impl LearnerCore {
@@ -128,6 +143,7 @@ impl LearnerCore {
             batch: Batch::default(),
             target_buf: Vec::new(),
             targets_stale: true,
+            skipped_batches: 0,
         }
     }
 
@@ -225,80 +241,181 @@ impl LearnerCore {
     }
 
     /// Featurises `ep` into replay (unless the filter drops it). `demonstration` marks imitation
-    /// data. Returns whether the episode was stored. A malformed episode is refused whole.
+    /// data. Returns whether the episode was stored. A malformed episode is refused whole: every
+    /// check (shape, finiteness, finite features and value targets) runs before anything —
+    /// counters, replay — changes.
     pub fn add_episode(
         &mut self,
         ep: &EpisodeData,
         demonstration: bool,
     ) -> Result<bool, LearnerError> {
-        self.check(ep).map_err(|reason| LearnerError::BadEpisode {
+        let prepared = self.prepare_episode(ep, demonstration)?;
+        Ok(self.commit_episode(prepared))
+    }
+
+    /// Every check and computation of [`LearnerCore::add_episode`], changing nothing: the
+    /// episode can then be made durable before [`LearnerCore::commit_episode`] stores it.
+    pub fn prepare_episode(
+        &mut self,
+        ep: &EpisodeData,
+        demonstration: bool,
+    ) -> Result<PreparedEpisode, LearnerError> {
+        let bad = |reason: String| LearnerError::BadEpisode {
             setting: ep.setting.name().to_string(),
             seed: ep.seed,
             reason,
-        })?;
-        if demonstration {
-            self.counters.demo_episodes += 1;
-        } else {
-            self.counters.rl_episodes += 1;
-        }
-        self.counters.env_steps += ep.steps() as u64;
+        };
+        self.check(ep).map_err(bad)?;
         let keep = match self.train.rl.replay_filter {
             ReplayFilter::All => true,
             ReplayFilter::SuccessCollision => {
                 matches!(ep.outcome, Outcome::ReachGoal | Outcome::Collision)
             }
         };
-        if !keep {
-            return Ok(false);
-        }
+        let row = self.humans * FEATURE_DIM;
+        let t_len = ep.steps();
         let discount = self
             .train
             .gamma
             .powf(self.dt_s * ep.states[0].robot.v_pref_mps) as f32;
-        // Features of every state, once.
-        self.feats.clear();
-        for s in &ep.states {
-            featurize_into(
-                &s.robot,
-                &s.humans,
-                self.order,
-                &mut self.order_buf,
-                &mut self.feats,
-            );
+        let mut returns = Vec::new();
+        let mut targets = Vec::new();
+        if keep {
+            // Features of every state, once (scratch buffers only).
+            self.feats.clear();
+            for s in &ep.states {
+                featurize_into(
+                    &s.robot,
+                    &s.humans,
+                    self.order,
+                    &mut self.order_buf,
+                    &mut self.feats,
+                );
+            }
+            if !self.feats.iter().all(|f| f.is_finite()) {
+                return Err(bad("non-finite feature".into()));
+            }
+            returns = vec![0f32; t_len];
+            let mut mc = 0f32;
+            for t in (0..t_len).rev() {
+                mc = ep.rewards[t].total as f32 + discount * mc;
+                returns[t] = mc;
+            }
+            if !returns.iter().all(|r| r.is_finite()) {
+                return Err(bad("non-finite return".into()));
+            }
+            if self.counters.imitation_done && !self.targets_stale {
+                // New transitions get their targets from the current target network.
+                targets = vec![0f32; t_len];
+                let next =
+                    StateBatch::new(&self.feats[row..(t_len + 1) * row], t_len, self.humans)?;
+                let mut scratch = policy::Scratch::default();
+                self.trainer
+                    .target()
+                    .values_into(next, &mut scratch, &mut targets);
+                for (t, y) in targets.iter_mut().enumerate() {
+                    let d = if t + 1 == t_len { 0.0 } else { discount };
+                    *y = ep.rewards[t].total as f32 + d * *y;
+                }
+                if !targets.iter().all(|y| y.is_finite()) {
+                    return Err(bad("non-finite value target".into()));
+                }
+            }
         }
+        Ok(PreparedEpisode {
+            demonstration,
+            keep,
+            steps: t_len,
+            discount,
+            feats: if keep {
+                std::mem::take(&mut self.feats)
+            } else {
+                Vec::new()
+            },
+            rewards: ep.rewards.iter().map(|r| r.total as f32).collect(),
+            returns,
+            targets,
+        })
+    }
+
+    /// Stores a prepared episode (never fails); returns whether it went into replay.
+    pub fn commit_episode(&mut self, p: PreparedEpisode) -> bool {
+        let PreparedEpisode {
+            demonstration,
+            keep,
+            steps: t_len,
+            discount,
+            feats,
+            rewards,
+            returns,
+            targets,
+        } = p;
         let row = self.humans * FEATURE_DIM;
-        let t_len = ep.steps();
-        let mut mc = 0f32;
-        let mut returns = vec![0f32; t_len];
-        for t in (0..t_len).rev() {
-            mc = ep.rewards[t].total as f32 + discount * mc;
-            returns[t] = mc;
+        if demonstration {
+            self.counters.demo_episodes += 1;
+        } else {
+            self.counters.rl_episodes += 1;
+        }
+        self.counters.env_steps += t_len as u64;
+        if !keep {
+            return false;
         }
         let mut first_slot = None;
         for (t, &mc_return) in returns.iter().enumerate() {
             // The last step ends the episode (a timeout is terminal for the target, SPEC §5).
             let terminal = t + 1 == t_len;
             let slot = self.replay.push(Transition {
-                state: &self.feats[t * row..(t + 1) * row],
-                next_state: &self.feats[(t + 1) * row..(t + 2) * row],
-                reward: ep.rewards[t].total as f32,
+                state: &feats[t * row..(t + 1) * row],
+                next_state: &feats[(t + 1) * row..(t + 2) * row],
+                reward: rewards[t],
                 discount: if terminal { 0.0 } else { discount },
                 mc_return,
             });
             first_slot.get_or_insert(slot);
         }
-        if self.counters.imitation_done && !self.targets_stale {
-            // New transitions get their targets from the current target network.
+        if !targets.is_empty() {
             let first = first_slot.expect("an episode has at least one step");
             let cap = self.replay.capacity();
-            if first + t_len <= cap {
-                self.refresh_targets(first..first + t_len)?;
-            } else {
-                self.refresh_targets(first..cap)?;
-                self.refresh_targets(0..first + t_len - cap)?;
-            }
+            let head = (cap - first).min(t_len);
+            self.replay.set_targets(first, &targets[..head]);
+            self.replay.set_targets(0, &targets[head..]);
         }
-        Ok(true)
+        // Hand the buffer back for the next episode's features.
+        self.feats = feats;
+        true
+    }
+
+    /// One gradient step towards `targets`; a batch whose loss or gradient is not finite is
+    /// skipped (the weights stay as they were) and counted. Returns the loss of a taken step.
+    fn fit_or_skip(&mut self, n: usize, use_returns: bool) -> Result<Option<f32>, LearnerError> {
+        let states = StateBatch::new(&self.batch.states, n, self.humans)?;
+        let targets = if use_returns {
+            &self.batch.returns
+        } else {
+            &self.batch.targets
+        };
+        match self.trainer.fit(states, targets) {
+            Ok(loss) => {
+                self.counters.updates += 1;
+                Ok(Some(loss))
+            }
+            Err(PolicyError::NonFinite(what)) => {
+                self.skipped_batches += 1;
+                if self.skipped_batches.is_power_of_two() {
+                    tracing::warn!(
+                        skipped = self.skipped_batches,
+                        "skipped a batch with a non-finite {what}"
+                    );
+                }
+                Ok(None)
+            }
+            Err(e) => Err(e.into()),
+        }
+    }
+
+    /// Batches skipped because their loss or gradient was not finite (not checkpointed).
+    pub fn skipped_batches(&self) -> u64 {
+        self.skipped_batches
     }
 
     /// Imitation learning: `epochs` shuffled passes over replay fitting the Monte-Carlo returns.
@@ -316,10 +433,10 @@ impl LearnerCore {
             let (mut sum, mut n) = (0f64, 0usize);
             for chunk in order.chunks(bs) {
                 self.replay.gather(chunk.iter().copied(), &mut self.batch);
-                let states = StateBatch::new(&self.batch.states, chunk.len(), self.humans)?;
-                sum += self.trainer.fit(states, &self.batch.returns)? as f64;
-                n += 1;
-                self.counters.updates += 1;
+                if let Some(loss) = self.fit_or_skip(chunk.len(), true)? {
+                    sum += loss as f64;
+                    n += 1;
+                }
             }
             last = (sum / n.max(1) as f64) as f32;
             self.counters.policy_version += 1;
@@ -419,10 +536,10 @@ impl LearnerCore {
             }
             self.replay.sample(&mut self.rng, bs, &mut self.batch);
             let b = self.batch.rewards.len();
-            let states = StateBatch::new(&self.batch.states, b, self.humans)?;
-            sum += self.trainer.fit(states, &self.batch.targets)? as f64;
-            n += 1;
-            self.counters.updates += 1;
+            if let Some(loss) = self.fit_or_skip(b, false)? {
+                sum += loss as f64;
+                n += 1;
+            }
         }
         self.counters.policy_version += 1;
         if self
@@ -438,5 +555,70 @@ impl LearnerCore {
         } else {
             (sum / n as f64) as f32
         })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use policy::rollout::{rollout, Behaviour};
+
+    fn orca_episode(seed: u64) -> EpisodeData {
+        let cfg = sim::SimConfig::default();
+        let mut env = sim::Env::new(cfg, "env1-invisible".parse().unwrap(), 0).unwrap();
+        rollout(
+            &mut env,
+            seed,
+            Behaviour::Orca {
+                safety_space_m: 0.0,
+            },
+        )
+        .unwrap()
+    }
+
+    /// An episode refused at the last check (its value targets overflow) leaves counters and
+    /// replay exactly as they were; a batch whose loss overflows is skipped and counted, and
+    /// the weights stay as they were.
+    #[test]
+    fn a_refused_episode_changes_nothing_and_a_non_finite_batch_is_skipped() {
+        let cfg = sim::SimConfig::default();
+        let mut core = LearnerCore::new(
+            Method::Sarl,
+            TrainConfig::default(),
+            cfg.humans.count,
+            cfg.dt_s,
+            1,
+        )
+        .unwrap();
+        for seed in 0..3 {
+            core.add_episode(&orca_episode(seed), true).unwrap();
+        }
+        core.start_rl().unwrap();
+        core.train_rl(1).unwrap();
+        let (counters, len) = (core.counters(), core.replay().len());
+        // A target network whose values overflow f32.
+        let online = core.trainer.online().clone();
+        let huge: Vec<f32> = online.params().iter().map(|p| p * 1e30).collect();
+        let target = ValueNet::from_params(online.config().clone(), huge).unwrap();
+        let adam = core.trainer.adam().clone();
+        core.trainer = Trainer::from_parts(online.clone(), target, adam).unwrap();
+        // The cached targets are current (as between two target-network refreshes).
+        core.targets_stale = false;
+        let err = core.add_episode(&orca_episode(7), false).unwrap_err();
+        assert!(err.to_string().contains("non-finite value target"), "{err}");
+        assert_eq!(core.counters(), counters);
+        assert_eq!(core.replay().len(), len);
+        // Targets that overflow make every batch's loss non-finite: skipped, counted.
+        core.targets_stale = true;
+        let err = core.train_rl(3);
+        // (Refreshing the cached targets over the whole replay refuses them as before.)
+        assert!(err.is_err());
+        let before = core.trainer.online().params().to_vec();
+        let states: Vec<f32> = core.replay.target_inputs(0..1).0.to_vec();
+        core.batch.states = states;
+        core.batch.targets = vec![f32::INFINITY];
+        assert_eq!(core.fit_or_skip(1, false).unwrap(), None);
+        assert_eq!(core.skipped_batches(), 1);
+        assert_eq!(core.trainer.online().params(), &before[..]);
     }
 }

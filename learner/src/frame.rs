@@ -1,10 +1,25 @@
 //! The frame around every file the learner writes for later (checkpoints, model files):
 //! magic (8 bytes), format version (u32 LE), payload length (u64 LE), payload, CRC-32 (IEEE) of
-//! the payload (u32 LE). [`write_atomic`] writes it to a temporary name, syncs and renames, so a
-//! crash never leaves a half-written file; [`open`] checks it in that order and never panics.
+//! the payload (u32 LE). [`open`] checks it in that order and never panics.
+//!
+//! [`replace`] is the one durable way to put a whole file in place (checkpoints, model files and
+//! a new write-ahead log all go through it), in this order:
+//!
+//! 1. create the temporary file (a sibling of the target, so the rename stays in one directory),
+//!    write every part, `fsync` it;
+//! 2. rename it over the target;
+//! 3. `fsync` the directory, which makes the rename itself survive a power loss.
+//!
+//! Only when all three succeeded is the new file durable, and only then may anything that it
+//! supersedes be dropped (the learner truncates its write-ahead log after a checkpoint). If
+//! writing or syncing fails (a full disk), the partial temporary file is removed and the target
+//! is untouched.
 
+use std::fs::File;
 use std::io::Write;
-use std::path::Path;
+use std::path::{Path, PathBuf};
+
+use crate::store::{Op, Probe};
 
 /// Bytes before the payload.
 pub(crate) const HEADER: usize = 8 + 4 + 8;
@@ -35,15 +50,16 @@ pub(crate) fn seal(magic: &[u8; 8], version: u32, payload: &[u8]) -> Vec<u8> {
     out
 }
 
-/// Writes the framed `payload` to `tmp`, syncs it and renames it to `path`.
+/// Writes the framed `payload` to `path` durably through `tmp` ([`replace`]).
 pub(crate) fn write_atomic(
     path: &Path,
     tmp: &Path,
     magic: &[u8; 8],
     version: u32,
     payload: &[u8],
-) -> Result<(), (std::path::PathBuf, std::io::Error)> {
-    replace(
+    probe: &Probe,
+) -> Result<(), (PathBuf, std::io::Error)> {
+    replace_observed(
         path,
         tmp,
         &[
@@ -51,25 +67,72 @@ pub(crate) fn write_atomic(
             payload,
             &crc32fast::hash(payload).to_le_bytes(),
         ],
+        probe,
     )
 }
 
-/// Writes `parts` one after the other to `tmp`, syncs it and renames it to `path`; an error
-/// names the file it happened to.
+/// Writes `parts` one after the other to `tmp`, syncs it, renames it to `path` and syncs the
+/// directory; an error names the file (or directory) it happened to.
 pub(crate) fn replace(
     path: &Path,
     tmp: &Path,
     parts: &[&[u8]],
-) -> Result<(), (std::path::PathBuf, std::io::Error)> {
+) -> Result<(), (PathBuf, std::io::Error)> {
+    replace_observed(path, tmp, parts, &Probe::none())
+}
+
+/// [`replace`], reporting every step to `probe`.
+pub(crate) fn replace_observed(
+    path: &Path,
+    tmp: &Path,
+    parts: &[&[u8]],
+    probe: &Probe,
+) -> Result<(), (PathBuf, std::io::Error)> {
     let write = || -> std::io::Result<()> {
-        let mut f = std::fs::File::create(tmp)?;
+        let mut f = File::create(tmp)?;
+        probe.after(Op::Created, tmp)?;
         for part in parts {
             f.write_all(part)?;
         }
-        f.sync_all()
+        probe.after(Op::Written, tmp)?;
+        f.sync_all()?;
+        probe.after(Op::Synced, tmp)
     };
-    write().map_err(|e| (tmp.to_path_buf(), e))?;
-    std::fs::rename(tmp, path).map_err(|e| (path.to_path_buf(), e))
+    if let Err(e) = write() {
+        remove_partial(tmp, probe);
+        return Err((tmp.to_path_buf(), e));
+    }
+    if let Err(e) = std::fs::rename(tmp, path) {
+        remove_partial(tmp, probe);
+        return Err((path.to_path_buf(), e));
+    }
+    let dir = parent(path);
+    probe
+        .after(Op::Renamed { from: tmp }, path)
+        .and_then(|()| sync_dir(dir, probe))
+        .map_err(|e| (dir.to_path_buf(), e))
+}
+
+/// Removes what a failed write left at `tmp` (best effort: the write's error is the one to
+/// report).
+fn remove_partial(tmp: &Path, probe: &Probe) {
+    if std::fs::remove_file(tmp).is_ok() {
+        let _ = probe.after(Op::Removed, tmp);
+    }
+}
+
+/// The directory holding `path` (`.` for a bare file name).
+pub(crate) fn parent(path: &Path) -> &Path {
+    match path.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p,
+        _ => Path::new("."),
+    }
+}
+
+/// Makes the entries of `dir` (files created, renamed or removed in it) durable.
+pub(crate) fn sync_dir(dir: &Path, probe: &Probe) -> std::io::Result<()> {
+    File::open(dir)?.sync_all()?;
+    probe.after(Op::DirSynced, dir)
 }
 
 /// The payload of a frame with `magic` and `version`; checks magic, length, version, size and
@@ -111,6 +174,8 @@ pub(crate) fn open<'a>(
 
 #[cfg(test)]
 mod tests {
+    use std::sync::{Arc, Mutex};
+
     use super::*;
 
     const MAGIC: &[u8; 8] = b"FSRLTEST";
@@ -161,11 +226,63 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("f.bin");
         let tmp = dir.path().join("f.bin.tmp");
-        write_atomic(&path, &tmp, MAGIC, 1, b"abc").unwrap();
+        write_atomic(&path, &tmp, MAGIC, 1, b"abc", &Probe::none()).unwrap();
         assert!(!tmp.exists());
         assert_eq!(std::fs::read(&path).unwrap(), seal(MAGIC, 1, b"abc"));
-        let err =
-            write_atomic(&path, &dir.path().join("no/such/dir"), MAGIC, 1, b"abc").unwrap_err();
+        let err = write_atomic(
+            &path,
+            &dir.path().join("no/such/dir"),
+            MAGIC,
+            1,
+            b"abc",
+            &Probe::none(),
+        )
+        .unwrap_err();
         assert!(err.0.ends_with("no/such/dir"));
+    }
+
+    /// The order is write, sync, rename, directory sync; a failure before the rename removes
+    /// the temporary file and leaves the old target as it was.
+    #[test]
+    fn replace_syncs_the_file_then_the_directory_and_cleans_up_after_a_failure() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("f.bin");
+        let tmp = dir.path().join("f.tmp");
+        let seen = Arc::new(Mutex::new(Vec::new()));
+        let log = Arc::clone(&seen);
+        let probe = Probe::new(move |op, p| {
+            log.lock().unwrap().push(format!(
+                "{op:?} {}",
+                p.file_name().unwrap().to_string_lossy()
+            ));
+            Ok(())
+        });
+        replace_observed(&path, &tmp, &[b"ab", b"c"], &probe).unwrap();
+        let d = dir
+            .path()
+            .file_name()
+            .unwrap()
+            .to_string_lossy()
+            .into_owned();
+        let tmp_s = tmp.display().to_string();
+        assert_eq!(
+            *seen.lock().unwrap(),
+            [
+                "Created f.tmp".to_string(),
+                "Written f.tmp".into(),
+                "Synced f.tmp".into(),
+                format!("Renamed {{ from: {tmp_s:?} }} f.bin"),
+                format!("DirSynced {d}"),
+            ]
+        );
+        // A full disk while writing: the error names the temporary file, which is gone.
+        let failing = Probe::new(|op, _| match op {
+            Op::Written => Err(std::io::Error::other("no space left (injected)")),
+            _ => Ok(()),
+        });
+        let err = replace_observed(&path, &tmp, &[b"new"], &failing).unwrap_err();
+        assert_eq!(err.0, tmp);
+        assert!(!tmp.exists());
+        assert_eq!(std::fs::read(&path).unwrap(), b"abc");
     }
 }

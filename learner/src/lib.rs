@@ -10,6 +10,7 @@ pub mod imitation;
 pub mod model;
 pub mod process;
 pub mod replay;
+pub mod store;
 pub mod wal;
 
 pub use crate::core::{Counters, LearnerCore, LearnerError};

@@ -107,6 +107,16 @@ struct Learner<'a> {
     window: Window,
     rejected_episodes: u64,
     duplicates: u64,
+    /// Episodes ahead of the next expected one (the actor re-sends from the gap).
+    out_of_order: u64,
+    /// Episodes refused while imitation runs (no actor should send then).
+    refused_in_imitation: u64,
+    /// Episodes not stored because the write-ahead log could not take them (full disk).
+    wal_failures: u64,
+    /// Checkpoints that failed (full disk); retried at the next occasion.
+    checkpoint_failures: u64,
+    /// Control and ack publications that failed (counted, never fatal).
+    publish_failures: u64,
     start: Instant,
     rl_start: (Instant, u64),
     last_loss: f32,
@@ -129,12 +139,71 @@ impl Learner<'_> {
 
     fn checkpoint(&mut self) -> Result<(), ProcessError> {
         let path = self.ckpt_path();
-        checkpoint::save(&path, &self.core, &self.sim_cfg, &self.run_info())?;
-        self.wal
-            .truncate()
-            .map_err(io("truncating the write-ahead log"))?;
+        let run = self.run_info();
+        // Durable (synced, renamed, directory synced) before the log is emptied; on error (a
+        // full disk) the log is untouched, the partial file removed, and a later call retries.
+        crate::store::commit_checkpoint(&path, &mut self.wal, &self.core, &self.sim_cfg, &run)?;
         tracing::info!(rl_episodes = self.core.counters().rl_episodes, path = %path.display(), "checkpoint written");
         Ok(())
+    }
+
+    /// A checkpoint whose failure (a full disk) is logged and counted, not fatal: the
+    /// write-ahead log keeps every acknowledged episode meanwhile. Returns whether it was written.
+    fn try_checkpoint(&mut self) -> bool {
+        match self.checkpoint() {
+            Ok(()) => true,
+            Err(e) => {
+                self.checkpoint_failures += 1;
+                warn_sometimes(
+                    "checkpoint",
+                    self.checkpoint_failures,
+                    format_args!("checkpoint failed (retried later; the write-ahead log holds the episodes): {e}"),
+                );
+                false
+            }
+        }
+    }
+
+    /// Tracks who is alive; returns whether the actor membership changed. At most
+    /// [`MAX_ACTORS`] actors are tracked; an actor that leaves loses its ack publisher.
+    fn on_alive(&mut self, ev: AliveEvent) -> bool {
+        match ev {
+            AliveEvent::Joined(m) if m.sender.role == Role::Actor => {
+                if self.actors_alive.len() >= MAX_ACTORS && !self.actors_alive.contains(&m) {
+                    self.rejected_episodes += 1;
+                    warn_sometimes(
+                        "rejected",
+                        self.rejected_episodes,
+                        format_args!("ignoring actor {m}: {MAX_ACTORS} actors are alive"),
+                    );
+                    return false;
+                }
+                tracing::info!(actor = %m, "actor joined");
+                self.actors_alive.insert(m);
+                self.ack(m.sender.index);
+                true
+            }
+            AliveEvent::Left(m) if m.sender.role == Role::Actor => {
+                tracing::warn!(actor = %m, "actor left");
+                self.actors_alive.remove(&m);
+                let index = m.sender.index;
+                if !self.actors_alive.iter().any(|a| a.sender.index == index) {
+                    self.acks.remove(&index);
+                }
+                true
+            }
+            AliveEvent::Joined(m) if m.sender.role == Role::Evaluator => {
+                if self.evaluators_alive.len() < MAX_ACTORS {
+                    self.evaluators_alive.insert(m);
+                }
+                false
+            }
+            AliveEvent::Left(m) if m.sender.role == Role::Evaluator => {
+                self.evaluators_alive.remove(&m);
+                false
+            }
+            _ => false,
+        }
     }
 
     fn phase(&self) -> RunPhase {
@@ -147,16 +216,24 @@ impl Learner<'_> {
         }
     }
 
-    fn publish_control(&mut self) -> Result<(), ProcessError> {
-        let mut ids: BTreeMap<u32, u64> = self.accepted_below.clone();
-        for m in &self.actors_alive {
-            ids.entry(m.sender.index).or_insert(0);
-        }
+    /// Announces phase, ε and credits. Credits go only to actors alive now (at most
+    /// [`proto::control::MAX_CREDIT_GRANTS`], lowest ids first); a failed publication is counted and
+    /// logged, never fatal (the next one repeats everything).
+    fn publish_control(&mut self) {
+        let mut ids: Vec<u32> = self.actors_alive.iter().map(|m| m.sender.index).collect();
+        ids.sort_unstable();
+        ids.dedup();
+        ids.truncate(proto::control::MAX_CREDIT_GRANTS);
         let credits = ids
             .iter()
-            .map(|(&actor, &below)| CreditGrant {
+            .map(|&actor| CreditGrant {
                 actor,
-                episode_budget: below + self.opts.in_flight_per_actor,
+                episode_budget: self
+                    .accepted_below
+                    .get(&actor)
+                    .copied()
+                    .unwrap_or(0)
+                    .saturating_add(self.opts.in_flight_per_actor),
             })
             .collect();
         let c = Control {
@@ -164,9 +241,17 @@ impl Learner<'_> {
             epsilon: self.core.epsilon() as f32,
             credits,
         };
-        self.control
-            .publish(self.core.counters().policy_version, &c)?;
-        Ok(())
+        if let Err(e) = self
+            .control
+            .publish(self.core.counters().policy_version, &c)
+        {
+            self.publish_failures += 1;
+            warn_sometimes(
+                "control",
+                self.publish_failures,
+                format_args!("publishing control failed: {e}"),
+            );
+        }
     }
 
     fn publish_weights(&mut self) -> Result<(), ProcessError> {
@@ -177,22 +262,43 @@ impl Learner<'_> {
         Ok(())
     }
 
-    fn ack(&mut self, actor: u32) -> Result<(), ProcessError> {
+    /// Tells `actor` how far it is stored (everything below is in the write-ahead log or a
+    /// checkpoint). Only for actors alive or known; a failed publication is counted, never fatal.
+    fn ack(&mut self, actor: u32) {
         let below = self.accepted_below.get(&actor).copied().unwrap_or(0);
         if !self.acks.contains_key(&actor) {
-            let p = self.t.publisher(&keys::ack(self.t.run(), actor))?;
-            self.acks.insert(actor, p);
+            match self.t.publisher(&keys::ack(self.t.run(), actor)) {
+                Ok(p) => {
+                    self.acks.insert(actor, p);
+                }
+                Err(e) => {
+                    self.publish_failures += 1;
+                    warn_sometimes(
+                        "ack",
+                        self.publish_failures,
+                        format_args!("declaring the ack publisher of actor {actor} failed: {e}"),
+                    );
+                    return;
+                }
+            }
         }
         let version = self.core.counters().policy_version;
-        self.acks[&actor].publish(
+        let sent = self.acks[&actor].publish(
             version,
             &Ack {
                 actor,
                 acked_below: below,
                 episodes: Vec::new(),
             },
-        )?;
-        Ok(())
+        );
+        if let Err(e) = sent {
+            self.publish_failures += 1;
+            warn_sometimes(
+                "ack",
+                self.publish_failures,
+                format_args!("acknowledging actor {actor} failed: {e}"),
+            );
+        }
     }
 
     fn publish_metrics(&self) -> Result<(), ProcessError> {
@@ -238,6 +344,12 @@ impl Learner<'_> {
             ("rejected_messages", self.t.rejected_count() as f64),
             ("rejected_episodes", self.rejected_episodes as f64),
             ("duplicate_episodes", self.duplicates as f64),
+            ("out_of_order_episodes", self.out_of_order as f64),
+            ("refused_in_imitation", self.refused_in_imitation as f64),
+            ("wal_failures", self.wal_failures as f64),
+            ("checkpoint_failures", self.checkpoint_failures as f64),
+            ("publish_failures", self.publish_failures as f64),
+            ("skipped_batches", self.core.skipped_batches() as f64),
             ("actors_alive", self.actors_alive.len() as f64),
             ("imitation_done", if c.imitation_done { 1.0 } else { 0.0 }),
         ] {
@@ -248,6 +360,7 @@ impl Learner<'_> {
     }
 
     /// Accepts one episode (not yet trained on). Returns false for a duplicate or a rejection.
+    /// Replaying the write-ahead log: `wal` is None (the record is already there).
     fn accept(
         &mut self,
         actor: u32,
@@ -255,30 +368,87 @@ impl Learner<'_> {
         version: u64,
         log: bool,
     ) -> Result<bool, ProcessError> {
-        let below = self.accepted_below.get(&actor).copied().unwrap_or(0);
+        Ok(self.accept_logged(actor, batch, version, log, None) == Accepted::Stored)
+    }
+
+    /// Accepts one episode: only the next one the actor owes (`episode == accepted_below`), of
+    /// this run's setting, passing every check; made durable (`wal`: its encoded message) before
+    /// it is stored and `accepted_below` moves. Nothing changes for a refused episode.
+    fn accept_logged(
+        &mut self,
+        actor: u32,
+        batch: &TransitionBatch,
+        version: u64,
+        log: bool,
+        wal: Option<&[u8]>,
+    ) -> Accepted {
+        let known = self.accepted_below.get(&actor).copied();
+        let below = known.unwrap_or(0);
         if batch.episode < below {
             self.duplicates += 1;
-            return Ok(false);
+            return Accepted::Duplicate;
         }
+        if batch.episode > below {
+            // A gap: an earlier episode was lost in flight. Storing this one would let the
+            // high-water-mark ack cover the lost one, so the actor re-sends from the gap.
+            self.out_of_order += 1;
+            warn_sometimes(
+                "out-of-order",
+                self.out_of_order,
+                format_args!(
+                    "actor {actor} sent episode {} while {below} is due; waiting for a re-send",
+                    batch.episode
+                ),
+            );
+            return Accepted::Refused;
+        }
+        if known.is_none() && self.accepted_below.len() >= MAX_ACTORS {
+            self.rejected_episodes += 1;
+            warn_sometimes(
+                "rejected",
+                self.rejected_episodes,
+                format_args!("refused actor {actor}: this run already has {MAX_ACTORS} actors"),
+            );
+            return Accepted::Refused;
+        }
+        let refuse = |l: &mut Self, why: &dyn std::fmt::Display| {
+            l.rejected_episodes += 1;
+            warn_sometimes(
+                "rejected",
+                l.rejected_episodes,
+                format_args!("rejected episode {} of actor {actor}: {why}", batch.episode),
+            );
+            Accepted::Refused
+        };
         let ep = match from_batch(batch, version, &self.sim_cfg) {
             Ok(ep) if ep.setting == self.spec.setting => ep,
-            Ok(ep) => {
-                self.rejected_episodes += 1;
-                tracing::warn!(actor, setting = %ep.setting, "rejected an episode of another setting");
-                return Ok(false);
-            }
-            Err(e) => {
-                self.rejected_episodes += 1;
-                tracing::warn!(actor, episode = batch.episode, "rejected an episode: {e}");
-                return Ok(false);
-            }
+            Ok(ep) => return refuse(self, &format_args!("setting {}", ep.setting)),
+            Err(e) => return refuse(self, &e),
         };
-        if let Err(e) = self.core.add_episode(&ep, false) {
-            self.rejected_episodes += 1;
-            tracing::warn!(actor, episode = batch.episode, "rejected an episode: {e}");
-            return Ok(false);
+        let prepared = match self.core.prepare_episode(&ep, false) {
+            Ok(p) => p,
+            Err(e) => return refuse(self, &e),
+        };
+        let Some(next) = batch.episode.checked_add(1) else {
+            return refuse(self, &"episode index at its limit");
+        };
+        if let Some(bytes) = wal {
+            // Durable before stored, stored before acknowledged.
+            if let Err(e) = self.wal.append(bytes) {
+                self.wal_failures += 1;
+                warn_sometimes(
+                    "wal",
+                    self.wal_failures,
+                    format_args!(
+                        "episode {} of actor {actor} not stored (the actor re-sends it): write-ahead log: {e}",
+                        batch.episode
+                    ),
+                );
+                return Accepted::Refused;
+            }
         }
-        self.accepted_below.insert(actor, batch.episode + 1);
+        self.core.commit_episode(prepared);
+        self.accepted_below.insert(actor, next);
         let lag = self.core.counters().policy_version.saturating_sub(version);
         self.window.push(ep.outcome, lag, self.last_loss);
         if log {
@@ -290,7 +460,27 @@ impl Learner<'_> {
                 "accepted"
             );
         }
-        Ok(true)
+        Accepted::Stored
+    }
+}
+
+/// What became of a received episode.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Accepted {
+    Stored,
+    Duplicate,
+    Refused,
+}
+
+/// Most actor ids a run keeps state for (accepted episodes, credits, ack publishers); more are
+/// refused. Equal to the most credit grants one control message carries.
+const MAX_ACTORS: usize = proto::control::MAX_CREDIT_GRANTS;
+
+/// Rate-limited warning: the 1st, 2nd, 4th, 8th, … occurrence of each kind (`count`, its
+/// running total) is logged, so a flood of bad input costs a handful of log lines.
+fn warn_sometimes(kind: &'static str, count: u64, what: std::fmt::Arguments<'_>) {
+    if count.is_power_of_two() {
+        tracing::warn!(kind, count, "{what} (logged at powers of two of the count)");
     }
 }
 
@@ -302,32 +492,40 @@ pub fn run(
     stop: &AtomicBool,
 ) -> Result<LearnerExit, ProcessError> {
     let run = transport.run().clone();
-    std::fs::create_dir_all(opts.run_dir.join("checkpoints"))
-        .map_err(io(format!("creating {}", opts.run_dir.display())))?;
-    let ckpt = opts.run_dir.join("checkpoints").join("latest.ckpt");
-    let wal_path = opts.run_dir.join("wal.bin");
+    // The run directory: locked for as long as this function runs (`_lock`), its log recovered
+    // from a crash mid-append, corruption refused (`store`).
+    let store = crate::store::Store::open(&opts.run_dir, crate::store::Probe::none())
+        .map_err(|e| io("cannot start the learner")(std::io::Error::other(e)))?;
     let sim_cfg = spec.method_sim();
 
-    // State: the last checkpoint, or a new run.
-    let (core, accepted_below) = if ckpt.exists() {
-        let loaded = checkpoint::load(&ckpt)?;
-        tracing::info!(
-            rl_episodes = loaded.core.counters().rl_episodes,
-            "resuming from {}",
-            ckpt.display()
-        );
-        (loaded.core, loaded.run.accepted_below)
-    } else {
-        let core = LearnerCore::new(
-            spec.method,
-            spec.train.clone(),
-            spec.sim.humans.count,
-            spec.sim.dt_s,
-            spec.seed,
-        )?;
-        (core, BTreeMap::new())
+    // State: the last checkpoint (refused if it is of another run), or a new run.
+    let expected = checkpoint::RunIdentity {
+        run_id: opts.run_id.clone(),
+        method: spec.method,
+        setting: spec.setting.name().to_string(),
+        run_seed: spec.seed,
     };
-    let wal_records = Wal::read_all(&wal_path).map_err(io("reading the write-ahead log"))?;
+    let (core, accepted_below) = match store.load_checkpoint(&expected)? {
+        Some(loaded) => {
+            tracing::info!(
+                rl_episodes = loaded.core.counters().rl_episodes,
+                "resuming from {}",
+                store.checkpoint_path().display()
+            );
+            (loaded.core, loaded.run.accepted_below)
+        }
+        None => {
+            let core = LearnerCore::new(
+                spec.method,
+                spec.train.clone(),
+                spec.sim.humans.count,
+                spec.sim.dt_s,
+                spec.seed,
+            )?;
+            (core, BTreeMap::new())
+        }
+    };
+    let (_lock, wal, wal_records) = store.into_parts();
     let subscriber = transport.subscriber(&keys::all_transitions(&run))?;
     let alive = transport.watch_alive()?;
     let mut l = Learner {
@@ -340,7 +538,7 @@ pub fn run(
         weights: transport.latest_publisher(&keys::weights(&run))?,
         control: transport.latest_publisher(&keys::control(&run))?,
         metrics: transport.publisher(&keys::metrics(&run, transport.sender()))?,
-        wal: Wal::open(&wal_path).map_err(io("opening the write-ahead log"))?,
+        wal,
         actors_alive: HashSet::new(),
         evaluators_alive: HashSet::new(),
         window: Window {
@@ -350,51 +548,68 @@ pub fn run(
         },
         rejected_episodes: 0,
         duplicates: 0,
+        out_of_order: 0,
+        refused_in_imitation: 0,
+        wal_failures: 0,
+        checkpoint_failures: 0,
+        publish_failures: 0,
         start: Instant::now(),
         rl_start: (Instant::now(), 0),
         last_loss: f32::NAN,
         sim_cfg,
     };
-    // Episodes acknowledged after the last checkpoint: back from the log, trained on again.
+    // Episodes acknowledged after the last checkpoint: back from the log, trained on again;
+    // those the checkpoint already holds (a crash before the log was emptied) are dropped. The
+    // log stays as it is: it already holds exactly these records.
+    let plan = crate::store::replay_plan(&wal_records, &l.accepted_below);
+    l.duplicates += plan.duplicates;
     let mut replayed = 0;
-    for rec in &wal_records {
-        match proto::decode::<TransitionBatch>(rec) {
-            Ok(msg) if msg.header.sender.role == Role::Actor => {
-                if l.accept(
-                    msg.header.sender.index,
-                    &msg.body,
-                    msg.header.policy_version,
-                    false,
-                )? {
-                    l.last_loss = l.core.train_rl(spec.train.rl.batches_per_episode)?;
-                    replayed += 1;
-                }
-            }
-            _ => tracing::warn!("skipping an unreadable write-ahead log record"),
+    for msg in &plan.episodes {
+        if l.accept(
+            msg.header.sender.index,
+            &msg.body,
+            msg.header.policy_version,
+            false,
+        )? {
+            l.last_loss = l.core.train_rl(spec.train.rl.batches_per_episode)?;
+            replayed += 1;
         }
+    }
+    if plan.unreadable > 0 {
+        tracing::warn!(
+            records = plan.unreadable,
+            "skipped write-ahead log records that are not an actor's episode"
+        );
     }
     if !wal_records.is_empty() {
-        tracing::info!(replayed, "write-ahead log replayed");
-        // Keep the records: they are still only in the log until the next checkpoint.
-        let mut fresh = Wal::open(&wal_path).map_err(io("reopening the write-ahead log"))?;
-        fresh
-            .truncate()
-            .map_err(io("truncating the write-ahead log"))?;
-        for rec in &wal_records {
-            fresh
-                .append(rec)
-                .map_err(io("rewriting the write-ahead log"))?;
-        }
-        l.wal = fresh;
+        tracing::info!(
+            replayed,
+            duplicates = plan.duplicates,
+            "write-ahead log replayed"
+        );
     }
     let _token = transport.declare_alive()?;
-    l.publish_control()?;
+    l.publish_control();
     l.publish_metrics()?;
 
     if !l.core.counters().imitation_done {
         let mut last = Instant::now();
         let metrics = transport.publisher(&keys::metrics(&run, transport.sender()))?;
+        let mut refused = 0u64;
         let finished = imitation::run(&mut l.core, spec, stop, |p| {
+            // Nobody should send episodes now (actors wait for the training phase): drain and
+            // count, so nothing piles up in the subscriber's queue during imitation.
+            while let Ok(Some(msg)) = subscriber.try_recv() {
+                refused += 1;
+                warn_sometimes(
+                    "imitation",
+                    refused,
+                    format_args!(
+                        "refused episode {} of {} during imitation",
+                        msg.body.episode, msg.header.sender
+                    ),
+                );
+            }
             if last.elapsed() >= opts.metrics_interval {
                 last = Instant::now();
                 let mut m = Metrics::default();
@@ -409,9 +624,12 @@ pub fn run(
                         m.values.insert("loss".into(), loss as f64);
                     }
                 }
+                m.values
+                    .insert("refused_in_imitation".into(), refused as f64);
                 let _ = metrics.publish(0, &m);
             }
         })?;
+        l.refused_in_imitation = refused;
         if !finished {
             return Ok(LearnerExit::Stopped);
         }
@@ -420,9 +638,10 @@ pub fn run(
     }
     l.rl_start = (Instant::now(), l.core.counters().rl_episodes);
     l.publish_weights()?;
-    l.publish_control()?;
+    l.publish_control();
     let mut last_tick = Instant::now();
     let every = spec.train.checkpoint_every_episodes;
+    let mut checkpoint_due = false;
 
     while l.phase() == RunPhase::Training {
         if stop.load(Ordering::SeqCst) {
@@ -431,36 +650,24 @@ pub fn run(
         }
         let mut membership_changed = false;
         while let Some(ev) = alive.recv_timeout(Duration::ZERO)? {
-            membership_changed = true;
-            match ev {
-                AliveEvent::Joined(m) if m.sender.role == Role::Actor => {
-                    tracing::info!(actor = %m, "actor joined");
-                    l.actors_alive.insert(m);
-                    l.ack(m.sender.index)?;
-                }
-                AliveEvent::Left(m) if m.sender.role == Role::Actor => {
-                    tracing::warn!(actor = %m, "actor left");
-                    l.actors_alive.remove(&m);
-                }
-                AliveEvent::Joined(m) if m.sender.role == Role::Evaluator => {
-                    l.evaluators_alive.insert(m);
-                }
-                AliveEvent::Left(m) if m.sender.role == Role::Evaluator => {
-                    l.evaluators_alive.remove(&m);
-                }
-                _ => {}
-            }
+            membership_changed |= l.on_alive(ev);
         }
         if membership_changed {
-            l.publish_control()?;
+            l.publish_control();
         }
         if last_tick.elapsed() >= opts.metrics_interval {
             last_tick = Instant::now();
             l.publish_metrics()?;
             // Re-acknowledge periodically: an actor that missed an ack learns where to go on.
-            let ids: Vec<u32> = l.actors_alive.iter().map(|m| m.sender.index).collect();
+            let mut ids: Vec<u32> = l.actors_alive.iter().map(|m| m.sender.index).collect();
+            ids.sort_unstable();
+            ids.dedup();
             for id in ids {
-                l.ack(id)?;
+                l.ack(id);
+            }
+            if checkpoint_due {
+                // A checkpoint failed earlier (a full disk): try again.
+                checkpoint_due = !l.try_checkpoint();
             }
         }
         let Some(msg) = subscriber.recv_timeout(Duration::from_millis(50))? else {
@@ -468,21 +675,42 @@ pub fn run(
         };
         if msg.header.sender.role != Role::Actor {
             l.rejected_episodes += 1;
-            tracing::warn!(sender = %msg.header.sender, "transitions from a non-actor ignored");
+            warn_sometimes(
+                "rejected",
+                l.rejected_episodes,
+                format_args!(
+                    "transitions from a non-actor ({}) ignored",
+                    msg.header.sender
+                ),
+            );
             continue;
         }
         let actor = msg.header.sender.index;
-        let bytes =
-            proto::encode_message(&msg).map_err(|e| ProcessError::Weights(e.to_string()))?;
-        let accepted = l.accept(actor, &msg.body, msg.header.policy_version, true)?;
-        if accepted {
-            // Durable before acknowledged.
-            l.wal
-                .append(&bytes)
-                .map_err(io("appending to the write-ahead log"))?;
+        let bytes = match proto::encode_message(&msg) {
+            Ok(b) => b,
+            Err(e) => {
+                l.rejected_episodes += 1;
+                warn_sometimes(
+                    "rejected",
+                    l.rejected_episodes,
+                    format_args!("episode of actor {actor} does not re-encode: {e}"),
+                );
+                continue;
+            }
+        };
+        let accepted = l.accept_logged(
+            actor,
+            &msg.body,
+            msg.header.policy_version,
+            true,
+            Some(&bytes),
+        );
+        // Acknowledge stored and duplicate episodes; a refused one from an unknown actor gets
+        // nothing (no per-actor state for strangers).
+        if accepted != Accepted::Refused || l.accepted_below.contains_key(&actor) {
+            l.ack(actor);
         }
-        l.ack(actor)?;
-        if !accepted {
+        if accepted != Accepted::Stored {
             continue;
         }
         l.last_loss = l.core.train_rl(spec.train.rl.batches_per_episode)?;
@@ -490,17 +718,17 @@ pub fn run(
             *last = l.last_loss;
         }
         l.publish_weights()?;
-        l.publish_control()?;
+        l.publish_control();
         let done = l.core.counters().rl_episodes;
-        if every > 0 && done.is_multiple_of(every) {
-            l.checkpoint()?;
+        if (every > 0 && done.is_multiple_of(every)) || checkpoint_due {
+            checkpoint_due = !l.try_checkpoint();
         }
     }
 
     // The run is over.
     l.checkpoint()?;
     l.publish_weights()?;
-    l.publish_control()?;
+    l.publish_control();
     l.publish_metrics()?;
     tracing::info!(
         rl_episodes = l.core.counters().rl_episodes,

@@ -26,6 +26,108 @@ pub enum WireError {
     Unfinished(u64),
     #[error("malformed batch: missing {0}")]
     Malformed(&'static str),
+    #[error("episode {episode}: {what} out of range: {value} (limit {limit})")]
+    OutOfRange {
+        episode: u64,
+        what: &'static str,
+        value: f64,
+        limit: String,
+    },
+}
+
+/// Physical limits of an episode of `cfg`'s world: what any honest actor can send. Positions
+/// stay within where an agent can walk in one episode, speeds within twice the fastest preferred
+/// speed, radii and v_pref within twice the configured ones, rewards within what one step can
+/// pay ([`sim::RewardConfig::step_bounds`]). Finite values that pass `proto`'s validation but
+/// not these (a reward of 1e30, a position of 3e38) would overflow the f32 loss.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct EpisodeLimits {
+    pub position_m: f64,
+    pub speed_mps: f64,
+    pub radius_m: f64,
+    pub v_pref_mps: f64,
+    pub reward: (f64, f64),
+    pub steps: u64,
+}
+
+impl EpisodeLimits {
+    pub fn of(cfg: &SimConfig) -> Self {
+        let fastest = cfg.robot.v_pref_mps.max(cfg.humans.v_pref_mps).abs();
+        let world_m = cfg.humans.circle_radius_m.abs()
+            + cfg.humans.square_half_width_m.abs()
+            + cfg.humans.start_noise_m.abs() * fastest
+            + cfg.robot.start_m[0].abs().max(cfg.robot.start_m[1].abs())
+            + cfg.robot.goal_m[0].abs().max(cfg.robot.goal_m[1].abs());
+        let radius_m = 2.0 * cfg.robot.radius_m.max(cfg.humans.radius_m).abs();
+        // Tolerance for the f32 wire encoding of f64 rewards.
+        let (lo, hi) = cfg.reward.step_bounds(radius_m);
+        let slack = 1e-4 * (1.0 + lo.abs().max(hi.abs()));
+        Self {
+            position_m: world_m + 2.0 * fastest * cfg.time_limit_s + 10.0,
+            speed_mps: 2.0 * fastest + 1e-3,
+            radius_m,
+            v_pref_mps: 2.0 * fastest + 1e-3,
+            reward: (lo - slack, hi + slack),
+            steps: (cfg.time_limit_s / cfg.dt_s).ceil() as u64 + 1,
+        }
+    }
+
+    /// Checks every state, reward and the length of `ep` (numbered `episode`).
+    pub fn check(&self, ep: &EpisodeData, episode: u64) -> Result<(), WireError> {
+        let out = |what: &'static str, value: f64, limit: String| WireError::OutOfRange {
+            episode,
+            what,
+            value,
+            limit,
+        };
+        let within = |what: &'static str, value: f64, limit: f64| {
+            if value.is_finite() && value.abs() <= limit {
+                Ok(())
+            } else {
+                Err(out(what, value, format!("±{limit}")))
+            }
+        };
+        let positive = |what: &'static str, value: f64, limit: f64| {
+            if value > 0.0 && value <= limit {
+                Ok(())
+            } else {
+                Err(out(what, value, format!("(0, {limit}]")))
+            }
+        };
+        if ep.actions.len() as u64 > self.steps {
+            return Err(out(
+                "steps",
+                ep.actions.len() as f64,
+                self.steps.to_string(),
+            ));
+        }
+        for s in &ep.states {
+            let r = &s.robot;
+            for v in [r.position.x, r.position.y, r.goal.x, r.goal.y] {
+                within("robot position", v, self.position_m)?;
+            }
+            within("robot speed", r.velocity.norm(), self.speed_mps)?;
+            within("robot heading", r.heading_rad, 1e3)?;
+            positive("robot radius", r.radius_m, self.radius_m)?;
+            positive("robot v_pref", r.v_pref_mps, self.v_pref_mps)?;
+            for h in &s.humans {
+                within("human position", h.position.x, self.position_m)?;
+                within("human position", h.position.y, self.position_m)?;
+                within("human speed", h.velocity.norm(), self.speed_mps)?;
+                positive("human radius", h.radius_m, self.radius_m)?;
+            }
+        }
+        let (lo, hi) = self.reward;
+        for r in &ep.rewards {
+            if !(r.total >= lo && r.total <= hi) {
+                return Err(out("reward", r.total, format!("[{lo}, {hi}]")));
+            }
+        }
+        if !(0.0..=1.0).contains(&ep.epsilon) {
+            return Err(out("epsilon", ep.epsilon, "[0, 1]".into()));
+        }
+        Ok(())
+    }
 }
 
 fn outcome_to_wire(o: Outcome) -> proto::Outcome {
@@ -203,7 +305,7 @@ pub fn from_batch(
             summary.min_danger_m = summary.min_danger_m.min(closest_m[t]);
         }
     }
-    Ok(EpisodeData {
+    let ep = EpisodeData {
         setting,
         seed: b.seed,
         states,
@@ -215,7 +317,9 @@ pub fn from_batch(
         epsilon: b.epsilon as f64,
         policy_version,
         summary,
-    })
+    };
+    EpisodeLimits::of(cfg).check(&ep, b.episode)?;
+    Ok(ep)
 }
 
 #[cfg(test)]
@@ -223,6 +327,95 @@ mod tests {
     use super::*;
     use crate::rollout::{rollout, Behaviour};
     use sim::Env;
+
+    /// Every honest episode passes the limits: ORCA and a random-acting network (ε = 1, the
+    /// widest spread of robot motions) in all six settings, under the default and the SPEC
+    /// literal rewards.
+    #[test]
+    fn honest_episodes_are_within_the_limits() {
+        use crate::lookahead::{HumanModel, Lookahead};
+        let net = crate::ValueNet::new(crate::NetConfig::sarl(), 3).unwrap();
+        let mut literal = SimConfig::default();
+        literal.reward.standing_alpha = 0.15;
+        literal.reward.dynamic_beta = 0.5;
+        for cfg in [SimConfig::default(), literal] {
+            let limits = EpisodeLimits::of(&cfg);
+            for setting in sim::Setting::ALL {
+                let mut env = Env::new(cfg.clone(), setting, 0).unwrap();
+                let mut la =
+                    Lookahead::new(0.9, HumanModel::Orca, crate::joint::HumanOrder::AsGiven);
+                for seed in 0..20u64 {
+                    let orca = rollout(
+                        &mut env,
+                        seed,
+                        Behaviour::Orca {
+                            safety_space_m: 0.0,
+                        },
+                    )
+                    .unwrap();
+                    limits.check(&orca, seed).unwrap();
+                    let random = rollout(
+                        &mut env,
+                        seed,
+                        Behaviour::Net {
+                            net: &net,
+                            lookahead: &mut la,
+                            epsilon: 1.0,
+                            policy_version: 0,
+                        },
+                    )
+                    .unwrap();
+                    limits.check(&random, seed).unwrap();
+                    let b = to_batch(&random, seed, env.action_set().len() as u16).unwrap();
+                    from_batch(&b, 0, &cfg).unwrap();
+                }
+            }
+        }
+    }
+
+    /// Finite but unphysical values (they would overflow the f32 loss) are refused by name.
+    #[test]
+    fn extreme_finite_values_are_refused() {
+        let cfg = SimConfig::default();
+        let mut env = Env::new(cfg.clone(), "env1-invisible".parse().unwrap(), 0).unwrap();
+        let ep = rollout(
+            &mut env,
+            5,
+            Behaviour::Orca {
+                safety_space_m: 0.0,
+            },
+        )
+        .unwrap();
+        let limits = EpisodeLimits::of(&cfg);
+        limits.check(&ep, 1).unwrap();
+        let refused = |mutate: &dyn Fn(&mut EpisodeData), what: &str| {
+            let mut bad = ep.clone();
+            mutate(&mut bad);
+            match limits.check(&bad, 1) {
+                Err(WireError::OutOfRange { what: w, .. }) => assert_eq!(w, what),
+                other => panic!("{what}: {other:?}"),
+            }
+        };
+        refused(&|e| e.rewards[0].total = 1e30, "reward");
+        refused(&|e| e.rewards[0].total = 2.0, "reward");
+        refused(&|e| e.states[1].robot.position.x = 3e38, "robot position");
+        refused(
+            &|e| e.states[1].humans[2].position.y = -1e6,
+            "human position",
+        );
+        refused(&|e| e.states[0].humans[0].velocity.x = 1e20, "human speed");
+        refused(&|e| e.states[0].robot.radius_m = 0.0, "robot radius");
+        refused(&|e| e.states[0].robot.v_pref_mps = 1e9, "robot v_pref");
+        refused(&|e| e.epsilon = 7.0, "epsilon");
+        // Through the wire too: the batch of a poisoned episode does not decode.
+        let mut bad = ep.clone();
+        bad.rewards[0].total = 1e30;
+        let b = to_batch(&bad, 4, env.action_set().len() as u16).unwrap();
+        assert!(matches!(
+            from_batch(&b, 0, &cfg),
+            Err(WireError::OutOfRange { episode: 4, .. })
+        ));
+    }
 
     #[test]
     fn an_episode_survives_the_wire() {

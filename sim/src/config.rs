@@ -383,6 +383,32 @@ pub struct RewardConfig {
     pub efficiency: bool,
 }
 
+impl RewardConfig {
+    /// The smallest and largest total one step can pay, for agents whose radii sum to at most
+    /// `radius_sum_m` (a receiver checks rewards it did not compute against this).
+    pub fn step_bounds(&self, radius_sum_m: f64) -> (f64, f64) {
+        // Boundary distances are ≥ −(r_robot + r_human): the deepest overlap.
+        let deepest_m = self.comfort_dist_m + radius_sum_m.max(0.0);
+        let mut lo = self
+            .collision_penalty
+            .min(self.success_reward)
+            .min(-self.discomfort_slope_per_m.abs() * deepest_m)
+            .min(0.0);
+        let mut hi = self.collision_penalty.max(self.success_reward).max(0.0);
+        if self.foresight {
+            lo -= self.standing_alpha.abs() + self.dynamic_beta.abs() * deepest_m;
+        }
+        if self.efficiency {
+            lo += self
+                .timeout_penalty
+                .min(-self.time_goal_factor.abs())
+                .min(0.0);
+            hi += self.timeout_penalty.max(0.0);
+        }
+        (lo, hi)
+    }
+}
+
 impl Default for RewardConfig {
     fn default() -> Self {
         Self {

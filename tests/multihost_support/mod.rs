@@ -19,6 +19,12 @@ use transport::{Transport, TransportConfig, ZenohConfig};
 pub const HELPER_ENV: &str = "FSRL_MULTIHOST_HELPER";
 /// A run config (TOML) whose `[run]` and `[transport.zenoh]` the helper uses.
 pub const CONFIG_ENV: &str = "FSRL_MULTIHOST_CONFIG";
+/// The observer's config for the weights, if not [`CONFIG_ENV`]'s: the monitor's credentials
+/// may not read weights, the evaluator's may.
+pub const WEIGHTS_CONFIG_ENV: &str = "FSRL_MULTIHOST_WEIGHTS_CONFIG";
+
+/// The run id that `deploy/router.json5`'s access control names.
+pub const DEPLOYED_RUN_ID: &str = "cluster";
 /// Extra helper parameter (`latency-pub`: messages, period in ms as `N,MS`).
 pub const ARG_ENV: &str = "FSRL_MULTIHOST_ARG";
 
@@ -195,11 +201,33 @@ pub fn make_secrets(dir: &Path, router_ips: &[String]) -> Result<(), String> {
     }
 }
 
-/// `fsrl router` arguments: `deploy/router.json5` with its certificate and dictionary paths
-/// pointed at `secrets` (made by [`make_secrets`]), plus `extra` `--cfg KEY:VALUE` settings.
+/// `fsrl router` arguments: `deploy/router.json5` (whose access control names the run
+/// [`DEPLOYED_RUN_ID`]) with its certificate and dictionary paths pointed at `secrets` (made by
+/// [`make_secrets`]), plus `extra` `--cfg KEY:VALUE` settings.
 pub fn router_args(secrets: &Path, extra: &[String]) -> Vec<String> {
-    let d = secrets.to_string_lossy();
     let router = Path::new(env!("CARGO_MANIFEST_DIR")).join("deploy/router.json5");
+    router_args_with(&router, secrets, extra)
+}
+
+/// [`router_args`] for the run `run_id`: `deploy/router.json5` with the run id in its access
+/// control changed as `deploy/README.md` says (`fsrl/cluster/` → `fsrl/<run_id>/`), written to
+/// `secrets/router-<run_id>.json5`.
+pub fn router_args_for_run(secrets: &Path, run_id: &str, extra: &[String]) -> Vec<String> {
+    let src = Path::new(env!("CARGO_MANIFEST_DIR")).join("deploy/router.json5");
+    let text = std::fs::read_to_string(&src).unwrap_or_else(|e| panic!("{}: {e}", src.display()));
+    let from = format!("fsrl/{DEPLOYED_RUN_ID}/");
+    assert!(
+        text.contains(&from),
+        "{} names no {from} keys",
+        src.display()
+    );
+    let router = secrets.join(format!("router-{run_id}.json5"));
+    std::fs::write(&router, text.replace(&from, &format!("fsrl/{run_id}/"))).unwrap();
+    router_args_with(&router, secrets, extra)
+}
+
+fn router_args_with(router: &Path, secrets: &Path, extra: &[String]) -> Vec<String> {
+    let d = secrets.to_string_lossy();
     let mut args = vec![
         "router".to_string(),
         "--config".into(),
@@ -226,17 +254,47 @@ pub fn adapt_deploy_config(
     out: &str,
     edit: impl FnOnce(&mut toml::Table),
 ) -> PathBuf {
+    adapt(name, |text| text, dir, out, edit)
+}
+
+/// `deploy/<name>`, its text changed by `rewrite`, parsed, changed by `edit`, written to
+/// `dir/<out>`.
+fn adapt(
+    name: &str,
+    rewrite: impl FnOnce(String) -> String,
+    dir: &Path,
+    out: &str,
+    edit: impl FnOnce(&mut toml::Table),
+) -> PathBuf {
     let src = Path::new(env!("CARGO_MANIFEST_DIR"))
         .join("deploy")
         .join(name);
     let text = std::fs::read_to_string(&src).unwrap_or_else(|e| panic!("{}: {e}", src.display()));
-    let mut t: toml::Table = text
+    let mut t: toml::Table = rewrite(text)
         .parse()
-        .unwrap_or_else(|e| panic!("{}: {e}", src.display()));
+        .unwrap_or_else(|e| panic!("{} (adapted): {e}", src.display()));
     edit(&mut t);
     let path = dir.join(out);
     std::fs::write(&path, toml::to_string(&t).expect("a TOML table serialises")).unwrap();
     path
+}
+
+/// `deploy/cluster-actor.toml` (actor 0's) made actor `id`'s as `deploy/README.md` does it
+/// (`sed s/actor-0/actor-<id>/g`: user `actor-<id>`, password file `actor-<id>.password`), then
+/// changed by `edit` and written to `dir/<out>`.
+pub fn adapt_actor_config(
+    id: u32,
+    dir: &Path,
+    out: &str,
+    edit: impl FnOnce(&mut toml::Table),
+) -> PathBuf {
+    adapt(
+        "cluster-actor.toml",
+        |text| text.replace("actor-0", &format!("actor-{id}")),
+        dir,
+        out,
+        edit,
+    )
 }
 
 /// `t[a][b]...` as a table, created if missing.
@@ -369,12 +427,28 @@ impl Observer {
         config: &Path,
         log: &Path,
     ) -> Self {
-        let child = Command::new("ip")
-            .args(["netns", "exec", ns])
+        Self::start_with(procs, ns, helper_args, config, None, log)
+    }
+
+    /// [`Observer::start`], reading the weights with `weights_config`'s credentials.
+    pub fn start_with(
+        procs: &mut Procs,
+        ns: &str,
+        helper_args: &[String],
+        config: &Path,
+        weights_config: Option<&Path>,
+        log: &Path,
+    ) -> Self {
+        let mut cmd = Command::new("ip");
+        cmd.args(["netns", "exec", ns])
             .arg(std::env::current_exe().unwrap())
             .args(helper_args)
             .env(HELPER_ENV, "observer")
-            .env(CONFIG_ENV, config)
+            .env(CONFIG_ENV, config);
+        if let Some(w) = weights_config {
+            cmd.env(WEIGHTS_CONFIG_ENV, w);
+        }
+        let child = cmd
             .stdin(Stdio::null())
             .stdout(Stdio::piped())
             .stderr(std::fs::File::create(log.with_extension("err")).unwrap())
@@ -491,7 +565,16 @@ fn emit(v: serde_json::Value) {
 
 /// `[run]` and `[transport.zenoh]` of a run config, as the fsrl binary reads them.
 fn helper_transport(role: Role, index: u32) -> Result<(TransportConfig, String), String> {
-    let path = PathBuf::from(std::env::var(CONFIG_ENV).map_err(|_| "no config given")?);
+    helper_transport_from(CONFIG_ENV, role, index)
+}
+
+/// [`helper_transport`] from the config named by the environment variable `env`.
+fn helper_transport_from(
+    env: &str,
+    role: Role,
+    index: u32,
+) -> Result<(TransportConfig, String), String> {
+    let path = PathBuf::from(std::env::var(env).map_err(|_| format!("no config given ({env})"))?);
     let text = std::fs::read_to_string(&path).map_err(|e| format!("{}: {e}", path.display()))?;
     let t: toml::Table = text
         .parse()
@@ -551,8 +634,8 @@ fn run_helper(mode: &str) -> Result<(), String> {
     }
 }
 
-/// Subscribes (monitor role) to metrics, weights, evaluation reports and liveliness of the
-/// run and prints every one.
+/// Subscribes (monitor role) to metrics, evaluation reports and liveliness of the run, and to
+/// its weights (with [`WEIGHTS_CONFIG_ENV`]'s credentials if given), and prints every one.
 fn observer() -> Result<(), String> {
     let (cfg, _) = helper_transport(Role::Monitor, 900)?;
     let t = open_retrying(cfg, Duration::from_secs(60))?;
@@ -560,7 +643,13 @@ fn observer() -> Result<(), String> {
     let e = |e: transport::TransportError| e.to_string();
     let metrics = t.subscriber(&keys::all_metrics(&run)).map_err(e)?;
     let reports = t.subscriber(&keys::all_eval_reports(&run)).map_err(e)?;
-    let weights = t.latest_subscriber(&keys::weights(&run)).map_err(e)?;
+    let reader = if std::env::var_os(WEIGHTS_CONFIG_ENV).is_some() {
+        let (cfg, _) = helper_transport_from(WEIGHTS_CONFIG_ENV, Role::Evaluator, 900)?;
+        open_retrying(cfg, Duration::from_secs(60))?
+    } else {
+        t.clone()
+    };
+    let weights = reader.latest_subscriber(&keys::weights(&run)).map_err(e)?;
     let alive = t.watch_alive().map_err(e)?;
     std::thread::spawn(move || loop {
         match weights.next(Duration::from_secs(1)) {
@@ -617,12 +706,25 @@ fn open_retrying(cfg: TransportConfig, patience: Duration) -> Result<Transport, 
     }
 }
 
+/// The metrics key a user may publish: `actor-<id>`'s, else the learner's.
+fn own_metrics_sender(cfg: &TransportConfig) -> SenderId {
+    let user = cfg.zenoh.auth.as_ref().map(|a| a.user.as_str());
+    match user.and_then(|u| u.strip_prefix("actor-")?.parse().ok()) {
+        Some(id) => SenderId::new(Role::Actor, id),
+        None => SenderId::new(Role::Learner, 0),
+    }
+}
+
 /// Tries to publish weights of version [`ROGUE_VERSION`] (the real wire format, a valid network
 /// of the run's method, the learner's sender id in the header), as the latest value (publisher
-/// plus queryable, like the learner). Also publishes a marked metrics message on an actor's
-/// metrics key, which an actor's credentials may publish: seeing it proves the session was up.
+/// plus queryable, like the learner). Also publishes a marked metrics message on the metrics
+/// key its credentials may publish (`actor-<id>`'s), from a second session of the same user
+/// with that sender (receivers refuse a sender other than the key's): seeing it proves the
+/// credentials were accepted.
 fn rogue() -> Result<(), String> {
     let (cfg, method) = helper_transport(Role::Learner, 0)?;
+    let mut marker_cfg = cfg.clone();
+    marker_cfg.sender = own_metrics_sender(&cfg);
     let mut last = String::new();
     let mut t = None;
     for _ in 0..3 {
@@ -643,8 +745,9 @@ fn rogue() -> Result<(), String> {
     let e = |e: transport::TransportError| e.to_string();
     let w = rogue_weights(&method, ROGUE_VERSION)?;
     let weights = t.latest_publisher(&keys::weights(&run)).map_err(e)?;
-    let marker = t
-        .publisher(&keys::metrics(&run, SenderId::new(Role::Actor, 99)))
+    let marker_t = open_retrying(marker_cfg, Duration::from_secs(10))?;
+    let marker = marker_t
+        .publisher(&keys::metrics(&run, marker_t.sender()))
         .map_err(e)?;
     let mut m = Metrics::default();
     m.values.insert("rogue_marker".into(), 1.0);

@@ -59,7 +59,8 @@ pub struct ZenohConfig {
 }
 
 /// TLS settings (zenoh `transport/link/tls/*`). Relative paths are resolved against the
-/// directory of the config file that holds them ([`ZenohConfig::resolve_paths`]).
+/// directory of the config file that holds them, a relative `key` first against systemd's
+/// credentials directory ([`ZenohConfig::resolve_paths`]).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct ZenohTls {
@@ -70,7 +71,7 @@ pub struct ZenohTls {
     /// subject the router's access control sees as `cert_common_names`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub cert: Option<PathBuf>,
-    /// The PEM private key of `cert`.
+    /// The PEM private key of `cert`: a secret, refused when group or others may read it.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub key: Option<PathBuf>,
     /// Check that the router's certificate names the host or address connected to (default
@@ -84,14 +85,17 @@ fn yes() -> bool {
 }
 
 /// User/password authentication (zenoh `transport/auth/usrpwd`). The password lives in its
-/// own file (first line; never in the TOML), readable only by the service's user.
+/// own file (first line; never in the TOML), readable only by the service's user: a file that
+/// group or others may read is refused ([`ZenohConfig::problems`]).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct ZenohAuth {
-    /// User name; the router's access control grants rights by it (`learner`, `actor`,
+    /// User name; the router's access control grants rights by it (`learner`, `actor-<id>`,
     /// `evaluator`, `monitor` in `deploy/router.json5`).
     pub user: String,
-    /// File whose first line is the password.
+    /// File whose first line is the password. A relative name is looked up first in systemd's
+    /// credentials directory (`$CREDENTIALS_DIRECTORY`, from the unit's `LoadCredential=`),
+    /// then beside the config file.
     pub password_file: PathBuf,
 }
 
@@ -151,11 +155,30 @@ impl ZenohConfig {
     }
 
     /// Makes the TLS and password file paths absolute, relative to `base` (the directory of
-    /// the config file they were read from).
+    /// the config file they were read from). The secrets (password file, TLS private key), when
+    /// named relatively, are first looked up by file name in systemd's credentials directory
+    /// (`$CREDENTIALS_DIRECTORY`, set for a unit with `LoadCredential=`): under systemd the
+    /// service then reads the copy only it can read, by hand the file beside the config.
     pub fn resolve_paths(&mut self, base: &Path) {
+        let credentials = std::env::var_os(CREDENTIALS_DIRECTORY).map(PathBuf::from);
+        self.resolve_paths_with(base, credentials.as_deref());
+    }
+
+    /// [`Self::resolve_paths`] with the credentials directory given.
+    fn resolve_paths_with(&mut self, base: &Path, credentials: Option<&Path>) {
         let fix = |p: &mut PathBuf| {
             if p.is_relative() {
                 *p = base.join(&*p);
+            }
+        };
+        let secret = |p: &mut PathBuf| {
+            if p.is_relative() {
+                let provided = credentials
+                    .filter(|c| c.is_absolute())
+                    .zip(p.file_name())
+                    .map(|(c, name)| c.join(name))
+                    .filter(|c| c.is_file());
+                *p = provided.unwrap_or_else(|| base.join(&*p));
             }
         };
         if let Some(t) = &mut self.tls {
@@ -164,11 +187,11 @@ impl ZenohConfig {
                 fix(c);
             }
             if let Some(k) = &mut t.key {
-                fix(k);
+                secret(k);
             }
         }
         if let Some(a) = &mut self.auth {
-            fix(&mut a.password_file);
+            secret(&mut a.password_file);
         }
     }
 
@@ -200,6 +223,7 @@ impl ZenohConfig {
                     (Some(c), Some(k)) => {
                         readable("zenoh.tls.cert", c, &mut problems);
                         readable("zenoh.tls.key", k, &mut problems);
+                        problems.extend(exposed_secret("zenoh.tls.key", k));
                     }
                     (None, None) => {}
                     _ => problems.push(
@@ -225,6 +249,7 @@ impl ZenohConfig {
             if let Err(e) = a.read_password() {
                 problems.push(format!("zenoh.auth.password_file: {e}"));
             }
+            problems.extend(exposed_secret("zenoh.auth.password_file", &a.password_file));
         }
         for (k, _) in &self.overrides {
             if k.starts_with("transport/auth") {
@@ -307,6 +332,31 @@ impl ZenohConfig {
         }
         Ok(c)
     }
+}
+
+/// The environment variable systemd sets to a unit's credentials directory (`LoadCredential=`).
+const CREDENTIALS_DIRECTORY: &str = "CREDENTIALS_DIRECTORY";
+
+/// A problem if the secret file `path` may be read (or changed) by anyone but its owner
+/// (`mode & 0o077 != 0`), naming the file, its mode and the fix. Nothing if it cannot be
+/// examined: that is reported as unreadable already.
+fn exposed_secret(what: &str, path: &Path) -> Option<String> {
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::PermissionsExt as _;
+        let mode = std::fs::metadata(path).ok()?.permissions().mode() & 0o7777;
+        if mode & 0o077 != 0 {
+            return Some(format!(
+                "{what}: {} is a secret but group or others may read it (mode {mode:04o}); \
+                 make it readable by the service's user only: chmod 600 {}",
+                path.display(),
+                path.display()
+            ));
+        }
+    }
+    #[cfg(not(unix))]
+    let _ = (what, path);
+    None
 }
 
 /// iceoryx2 settings (used when `data_plane = "iceoryx2"`).
@@ -464,6 +514,18 @@ mod tests {
         }
     }
 
+    /// Writes `text` to `path` with permission bits `mode`.
+    fn write_mode(path: &Path, text: &str, mode: u32) {
+        std::fs::write(path, text).unwrap();
+        #[cfg(unix)]
+        {
+            use std::os::unix::fs::PermissionsExt as _;
+            std::fs::set_permissions(path, std::fs::Permissions::from_mode(mode)).unwrap();
+        }
+        #[cfg(not(unix))]
+        let _ = mode;
+    }
+
     fn secured(dir: &Path) -> ZenohConfig {
         let mut z = ZenohConfig::client("tls/10.0.0.1:7447");
         z.tls = Some(ZenohTls {
@@ -497,7 +559,7 @@ mod tests {
         let s = Scratch::new("ok");
         std::fs::create_dir_all(s.0.join("certs")).unwrap();
         std::fs::write(s.0.join("certs/ca.crt"), "pem").unwrap();
-        std::fs::write(s.0.join("actor.password"), "s3cret\n").unwrap();
+        write_mode(&s.0.join("actor.password"), "s3cret\n", 0o600);
         let z = secured(&s.0);
         assert!(z.problems().is_empty(), "{:?}", z.problems());
         let c = z.to_zenoh(1 << 20).unwrap();
@@ -516,9 +578,11 @@ mod tests {
         );
         // Mutual TLS: the client certificate and key for both sides of a link.
         let mut m = z.clone();
+        write_mode(&s.0.join("certs/me.key"), "pem", 0o600);
         let t = m.tls.as_mut().unwrap();
         t.cert = Some(s.0.join("certs/ca.crt"));
-        t.key = Some(s.0.join("certs/ca.crt"));
+        t.key = Some(s.0.join("certs/me.key"));
+        assert!(m.problems().is_empty(), "{:?}", m.problems());
         let c = m.to_zenoh(1 << 20).unwrap();
         assert_eq!(
             c.get_json("transport/link/tls/enable_mtls").unwrap(),
@@ -566,5 +630,85 @@ mod tests {
             .problems()
             .iter()
             .any(|p| p.contains("password in a file")));
+    }
+
+    #[cfg(unix)]
+    #[test]
+    fn secrets_readable_by_group_or_others_are_refused_naming_file_mode_and_fix() {
+        let s = Scratch::new("mode");
+        std::fs::create_dir_all(s.0.join("certs")).unwrap();
+        std::fs::write(s.0.join("certs/ca.crt"), "pem").unwrap();
+        let password = s.0.join("actor.password");
+        let key = s.0.join("certs/me.key");
+        write_mode(&password, "s3cret\n", 0o644);
+        write_mode(&key, "pem", 0o640);
+        let mut z = secured(&s.0);
+        let t = z.tls.as_mut().unwrap();
+        t.cert = Some(s.0.join("certs/ca.crt"));
+        t.key = Some(key.clone());
+        let p = z.problems();
+        assert_eq!(p.len(), 2, "{p:?}");
+        for (problem, file, mode) in [(&p[1], &password, "0644"), (&p[0], &key, "0640")] {
+            let file = file.display().to_string();
+            assert!(
+                problem.contains(&file)
+                    && problem.contains(&format!("mode {mode}"))
+                    && problem.contains(&format!("chmod 600 {file}")),
+                "{problem}"
+            );
+        }
+        // Reported with the other problems of the config when the transport opens.
+        let mut cfg = TransportConfig::new(
+            RunId::new("r").unwrap(),
+            SenderId::new(proto::Role::Actor, 0),
+        );
+        cfg.zenoh = z.clone();
+        cfg.subscriber_queue = 0;
+        let Err(TransportError::Config(all)) = cfg.validate() else {
+            panic!("a readable secret must be refused");
+        };
+        assert!(
+            all.contains("subscriber_queue") && all.contains("mode 0644"),
+            "{all}"
+        );
+        // Owner-only files (0600, or 0400 as systemd's credentials) are accepted.
+        write_mode(&password, "s3cret\n", 0o600);
+        write_mode(&key, "pem", 0o400);
+        assert!(z.problems().is_empty(), "{:?}", z.problems());
+    }
+
+    #[test]
+    fn secrets_named_relatively_come_from_the_credentials_directory_first() {
+        let s = Scratch::new("creds");
+        let creds = s.0.join("credentials");
+        std::fs::create_dir_all(&creds).unwrap();
+        write_mode(&creds.join("actor.password"), "from-systemd\n", 0o400);
+        let mut z = ZenohConfig::client("tls/10.0.0.1:7447");
+        z.tls = Some(ZenohTls {
+            root_ca: "certs/ca.crt".into(),
+            cert: Some("certs/actor.crt".into()),
+            key: Some("certs/actor.key".into()),
+            verify_name: true,
+        });
+        z.auth = Some(ZenohAuth {
+            user: "actor-0".into(),
+            password_file: "actor.password".into(),
+        });
+        let mut under_systemd = z.clone();
+        under_systemd.resolve_paths_with(Path::new("/etc/fsrl"), Some(&creds));
+        let a = under_systemd.auth.as_ref().unwrap();
+        assert_eq!(a.password_file, creds.join("actor.password"));
+        assert_eq!(a.read_password().unwrap(), "from-systemd");
+        // Not provided as a credential, or not a secret: beside the config file.
+        let t = under_systemd.tls.as_ref().unwrap();
+        assert_eq!(
+            t.key.as_deref(),
+            Some(Path::new("/etc/fsrl/certs/actor.key"))
+        );
+        assert_eq!(t.root_ca, Path::new("/etc/fsrl/certs/ca.crt"));
+        let mut by_hand = z.clone();
+        by_hand.resolve_paths_with(Path::new("/etc/fsrl"), None);
+        let a = by_hand.auth.as_ref().unwrap();
+        assert_eq!(a.password_file, Path::new("/etc/fsrl/actor.password"));
     }
 }

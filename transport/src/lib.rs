@@ -202,6 +202,7 @@ impl Transport {
                 &self.inner.session,
                 topic.key_expr(),
                 self.inner.config.subscriber_queue,
+                SUBSCRIBER_QUEUE_BYTES,
             )?),
         };
         Ok(Subscriber {
@@ -325,6 +326,11 @@ impl Transport {
         Ok(members)
     }
 }
+
+/// Payload bytes a zenoh subscriber queues at most (besides `subscriber_queue` messages):
+/// 1024 queued 16 MiB messages would be 16 GiB; this keeps a flood to 64 MiB per subscriber.
+/// The sender waits meanwhile (reliable topics) or drops (best effort).
+pub const SUBSCRIBER_QUEUE_BYTES: usize = 64 << 20;
 
 fn check_publishable<M>(topic: &Topic<M>) -> Result<(), TransportError> {
     if topic.is_wildcard() {
@@ -499,6 +505,51 @@ struct Receiver {
     run: RunId,
     limit: usize,
     rejected: RejectCounter,
+    /// For a subscription to a family of per-sender keys (`…/transitions/*`,
+    /// `…/metrics/**`): the key each sender must publish under.
+    sender_keys: Option<SenderKeys>,
+}
+
+/// The concrete key of a sender within a wildcard family: `<prefix><index>` (`…/*`) or
+/// `<prefix><role>/<index>` (`…/**`), as [`proto::keys`] builds them.
+#[derive(Clone)]
+enum SenderKeys {
+    /// `<prefix><index>`, published only by `role` (transitions: actors; eval: evaluators).
+    Index(String, Option<proto::Role>),
+    RoleIndex(String),
+}
+
+impl SenderKeys {
+    fn of(key_expr: &str) -> Option<Self> {
+        if let Some(prefix) = key_expr.strip_suffix("**") {
+            Some(SenderKeys::RoleIndex(prefix.to_string()))
+        } else {
+            let prefix = key_expr.strip_suffix('*')?;
+            let role = if prefix.ends_with("/transitions/") {
+                Some(proto::Role::Actor)
+            } else if prefix.ends_with("/eval/") {
+                Some(proto::Role::Evaluator)
+            } else {
+                None
+            };
+            Some(SenderKeys::Index(prefix.to_string(), role))
+        }
+    }
+
+    fn matches(&self, key: &str, sender: proto::SenderId) -> bool {
+        match self {
+            SenderKeys::Index(p, role) => {
+                key.strip_prefix(p.as_str()) == Some(&*sender.index.to_string())
+                    && role.is_none_or(|r| r == sender.role)
+            }
+            SenderKeys::RoleIndex(p) => key
+                .strip_prefix(p.as_str())
+                .and_then(|t| t.split_once('/'))
+                .is_some_and(|(role, index)| {
+                    role == sender.role.to_string() && index == sender.index.to_string()
+                }),
+        }
+    }
 }
 
 impl Receiver {
@@ -507,6 +558,7 @@ impl Receiver {
             run: t.run().clone(),
             limit: t.inner.config.max_message_bytes,
             rejected: RejectCounter::new(Arc::clone(&t.inner.rejections), key),
+            sender_keys: SenderKeys::of(key),
         }
     }
 
@@ -520,6 +572,21 @@ impl Receiver {
         };
         self.rejected.reject(source, &why);
         None
+    }
+
+    /// [`Receiver::accept`] for a message that arrived on zenoh key `key`: within a family of
+    /// per-sender keys the header's sender must be the key's (the router's access control
+    /// binds keys to credentials, so the header cannot claim another sender).
+    fn accept_keyed<M: Body>(&self, bytes: &[u8], key: &str) -> Option<Message<M>> {
+        let m = self.accept::<M>(bytes, &key)?;
+        match &self.sender_keys {
+            Some(k) if !k.matches(key, m.header.sender) => {
+                self.rejected
+                    .reject(&key, &Rejection::WrongSender(m.header.sender.to_string()));
+                None
+            }
+            _ => Some(m),
+        }
     }
 }
 
@@ -549,7 +616,9 @@ impl<M: Body> Subscriber<M> {
                 let Some(sample) = sample else {
                     return Ok(None);
                 };
-                if let Some(m) = zenoh_impl::with_payload(&sample, |b, s| self.rx.accept(b, s)) {
+                if let Some(m) =
+                    zenoh_impl::with_payload_key(&sample, |b, k| self.rx.accept_keyed(b, k))
+                {
                     return Ok(Some(m));
                 }
             },
@@ -562,7 +631,8 @@ impl<M: Body> Subscriber<M> {
         match &self.backend {
             SubBackend::Zenoh(q) => {
                 while let Some(sample) = q.try_recv().map_err(error::zenoh_err("receive"))? {
-                    if let Some(m) = zenoh_impl::with_payload(&sample, |b, s| self.rx.accept(b, s))
+                    if let Some(m) =
+                        zenoh_impl::with_payload_key(&sample, |b, k| self.rx.accept_keyed(b, k))
                     {
                         return Ok(Some(m));
                     }

@@ -13,6 +13,8 @@ pub(crate) enum Rejection {
     Decode(DecodeError),
     /// It belongs to another run.
     WrongRun(String),
+    /// Its header names another sender than the key it was published under.
+    WrongSender(String),
 }
 
 impl std::fmt::Display for Rejection {
@@ -20,11 +22,17 @@ impl std::fmt::Display for Rejection {
         match self {
             Rejection::Decode(e) => write!(f, "{e}"),
             Rejection::WrongRun(r) => write!(f, "message of run {r:?}"),
+            Rejection::WrongSender(who) => write!(f, "header names {who}, not the key's sender"),
         }
     }
 }
 
-/// Transport-wide rejection counter; logs the first rejection of each source once.
+/// Sources remembered for "first rejection" logging; beyond this many distinct sources (a
+/// flood of fresh keys), rejections are logged at powers of two of the total only.
+const MAX_WARNED_SOURCES: usize = 256;
+
+/// Transport-wide rejection counter; logs the first rejection of each source once (for at most
+/// [`MAX_WARNED_SOURCES`] sources).
 #[derive(Debug, Default)]
 pub(crate) struct Rejections {
     total: AtomicU64,
@@ -64,9 +72,17 @@ impl RejectCounter {
         self.local.fetch_add(1, Ordering::Relaxed);
         self.shared.total.fetch_add(1, Ordering::Relaxed);
         let source = source.to_string();
-        let first = match self.shared.warned.lock() {
-            Ok(mut w) => w.insert(source.clone()),
-            Err(poisoned) => poisoned.into_inner().insert(source.clone()),
+        let first = {
+            let mut w = match self.shared.warned.lock() {
+                Ok(w) => w,
+                Err(poisoned) => poisoned.into_inner(),
+            };
+            if w.len() < MAX_WARNED_SOURCES {
+                w.insert(source.clone())
+            } else {
+                // Past the bound: log at powers of two of the total instead of per source.
+                self.shared.total.load(Ordering::Relaxed).is_power_of_two()
+            }
         };
         if first {
             tracing::warn!(

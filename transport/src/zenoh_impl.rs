@@ -1,11 +1,11 @@
 //! zenoh backend: session, per-topic QoS, latest-value (queryable cache) and liveliness.
 
-use std::sync::{Arc, Mutex};
+use std::collections::VecDeque;
+use std::sync::{Arc, Condvar, Mutex};
 use std::time::Duration;
 
 use proto::{Delivery, Fanout};
 use zenoh::bytes::ZBytes;
-use zenoh::handlers::{FifoChannel, FifoChannelHandler};
 use zenoh::liveliness::LivelinessToken;
 use zenoh::matching::MatchingListener;
 use zenoh::pubsub::{Publisher, Subscriber};
@@ -66,16 +66,120 @@ pub(crate) fn has_subscribers(publisher: &Publisher<'static>) -> Result<bool, Tr
         .matching())
 }
 
-pub(crate) type SampleQueue = Subscriber<FifoChannelHandler<Sample>>;
+pub(crate) type SampleQueue = Subscriber<ByteQueue>;
+
+/// A subscriber's queue bounded in messages **and in bytes** of payload: when either bound is
+/// reached, zenoh's receiving task waits (reliable traffic is held back at the sender, as with
+/// a full `FifoChannel`) until the reader takes something. One message larger than the byte
+/// bound is still admitted into an empty queue, so nothing valid is refused for its size.
+#[derive(Clone)]
+pub(crate) struct ByteQueue {
+    shared: Arc<(Mutex<QueueState>, Condvar)>,
+}
+
+struct QueueState {
+    samples: VecDeque<Sample>,
+    bytes: usize,
+}
+
+impl ByteQueue {
+    fn new() -> Self {
+        Self {
+            shared: Arc::new((
+                Mutex::new(QueueState {
+                    samples: VecDeque::new(),
+                    bytes: 0,
+                }),
+                Condvar::new(),
+            )),
+        }
+    }
+
+    fn lock(&self) -> std::sync::MutexGuard<'_, QueueState> {
+        self.shared.0.lock().unwrap_or_else(|p| p.into_inner())
+    }
+
+    /// zenoh's side: waits while the queue is full.
+    fn push(&self, sample: Sample, max_messages: usize, max_bytes: usize) {
+        let len = sample.payload().len();
+        let mut s = self.lock();
+        while !s.samples.is_empty()
+            && (s.samples.len() >= max_messages || s.bytes + len > max_bytes)
+        {
+            s = self.shared.1.wait(s).unwrap_or_else(|p| p.into_inner());
+        }
+        s.bytes += len;
+        s.samples.push_back(sample);
+        self.shared.1.notify_all();
+    }
+
+    fn pop(s: &mut QueueState) -> Option<Sample> {
+        let sample = s.samples.pop_front()?;
+        s.bytes -= sample.payload().len();
+        Some(sample)
+    }
+
+    /// The next sample, waiting up to `timeout`.
+    pub(crate) fn recv_timeout(&self, timeout: Duration) -> zenoh::Result<Option<Sample>> {
+        let deadline = std::time::Instant::now() + timeout;
+        let mut s = self.lock();
+        loop {
+            if let Some(sample) = Self::pop(&mut s) {
+                self.shared.1.notify_all();
+                return Ok(Some(sample));
+            }
+            let left = deadline.saturating_duration_since(std::time::Instant::now());
+            if left.is_zero() {
+                return Ok(None);
+            }
+            s = self
+                .shared
+                .1
+                .wait_timeout(s, left)
+                .unwrap_or_else(|p| p.into_inner())
+                .0;
+        }
+    }
+
+    /// The next sample if one is queued.
+    pub(crate) fn try_recv(&self) -> zenoh::Result<Option<Sample>> {
+        let mut s = self.lock();
+        let sample = Self::pop(&mut s);
+        if sample.is_some() {
+            self.shared.1.notify_all();
+        }
+        Ok(sample)
+    }
+
+    /// Payload bytes queued now.
+    #[cfg(test)]
+    fn bytes(&self) -> usize {
+        self.lock().bytes
+    }
+}
+
+/// A queue and the zenoh callback that fills it.
+fn byte_queue(
+    max_messages: usize,
+    max_bytes: usize,
+) -> (impl Fn(Sample) + Send + Sync + 'static, ByteQueue) {
+    let q = ByteQueue::new();
+    let filler = q.clone();
+    (
+        move |sample| filler.push(sample, max_messages, max_bytes),
+        q,
+    )
+}
 
 pub(crate) fn declare_subscriber(
     session: &Session,
     key: &str,
     capacity: usize,
+    capacity_bytes: usize,
 ) -> Result<SampleQueue, TransportError> {
     session
         .declare_subscriber(key.to_string())
-        .with(FifoChannel::new(capacity))
+        .with(byte_queue(capacity, capacity_bytes))
         .wait()
         .map_err(zenoh_err("declare subscriber"))
 }
@@ -87,6 +191,12 @@ pub(crate) fn with_payload<R>(
 ) -> R {
     let bytes = sample.payload().to_bytes();
     f(&bytes, &sample.key_expr().as_str())
+}
+
+/// The payload bytes of a sample and its key expression.
+pub(crate) fn with_payload_key<R>(sample: &Sample, f: impl FnOnce(&[u8], &str) -> R) -> R {
+    let bytes = sample.payload().to_bytes();
+    f(&bytes, sample.key_expr().as_str())
 }
 
 /// Publisher of a latest-value topic: a publisher plus a queryable that answers late joiners
@@ -239,7 +349,7 @@ pub(crate) fn watch_liveliness(
         .liveliness()
         .declare_subscriber(key.to_string())
         .history(true)
-        .with(FifoChannel::new(1024))
+        .with(byte_queue(1024, 1 << 20))
         .wait()
         .map_err(zenoh_err("declare liveliness subscriber"))
 }
@@ -263,4 +373,54 @@ pub(crate) fn alive_keys(
         }
     }
     Ok(keys)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The queue holds at most its byte bound (one oversized message alone), and a full queue
+    /// makes the filler wait until the reader takes something.
+    #[test]
+    fn the_queue_is_bounded_in_bytes() {
+        // Loopback only, no scouting.
+        let mut cfg = zenoh::Config::default();
+        cfg.insert_json5("scouting/multicast/enabled", "false")
+            .unwrap();
+        cfg.insert_json5("listen/endpoints", r#"["tcp/127.0.0.1:0"]"#)
+            .unwrap();
+        let session = zenoh::open(cfg).wait().unwrap();
+        let sub = session
+            .declare_subscriber("fsrl/test/bytequeue")
+            .with(byte_queue(1024, 3000))
+            .wait()
+            .unwrap();
+        let publisher = session
+            .declare_publisher("fsrl/test/bytequeue")
+            .wait()
+            .unwrap();
+        // A filler thread: 10 messages of 1000 bytes into a 3000-byte queue.
+        std::thread::scope(|s| {
+            s.spawn(|| {
+                for i in 0..10u8 {
+                    publisher.put(vec![i; 1000]).wait().unwrap();
+                }
+            });
+            let mut max_seen = 0;
+            let mut got = Vec::new();
+            while got.len() < 10 {
+                std::thread::sleep(Duration::from_millis(20));
+                max_seen = max_seen.max(sub.bytes());
+                if let Some(sample) = sub.recv_timeout(Duration::from_secs(5)).unwrap() {
+                    got.push(sample.payload().to_bytes()[0]);
+                }
+            }
+            assert!(max_seen <= 3000, "queued {max_seen} bytes");
+            assert_eq!(got, (0..10).collect::<Vec<u8>>(), "in order, none lost");
+        });
+        // One message over the bound is still admitted into the empty queue.
+        publisher.put(vec![7u8; 5000]).wait().unwrap();
+        let big = sub.recv_timeout(Duration::from_secs(5)).unwrap().unwrap();
+        assert_eq!(big.payload().len(), 5000);
+    }
 }

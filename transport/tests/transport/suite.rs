@@ -655,3 +655,51 @@ fn shared_memory_removed_on_shutdown(b: Backend) {
     let left = net.shm_entries();
     assert!(left.is_empty(), "shared memory left behind: {left:?}");
 }
+
+/// Over zenoh (where the router binds keys to credentials) a message whose header names
+/// another sender than its key is rejected and counted: an actor cannot pass its episodes off
+/// as another actor's. iceoryx2 stays on one machine, within one trust domain.
+#[test]
+fn a_header_naming_another_sender_than_its_key_is_rejected() {
+    let mut net = Net::new(Backend::Zenoh);
+    let learner = net.open(SenderId::learner());
+    let sub = learner
+        .subscriber(&keys::all_transitions(&net.run))
+        .expect("sub");
+    let metrics_sub = learner
+        .subscriber(&keys::all_metrics(&net.run))
+        .expect("metrics sub");
+    let actor = net.open(SenderId::actor(0));
+    let p = actor
+        .publisher(&keys::transitions(&net.run, 0))
+        .expect("pub");
+    let m = actor
+        .publisher(&keys::metrics(&net.run, SenderId::actor(0)))
+        .expect("metrics pub");
+    assert!(p.wait_for_subscribers(WAIT).expect("matching"));
+    assert!(m.wait_for_subscribers(WAIT).expect("matching"));
+    let valid = fixtures::episode(45, 10, 0);
+    for claimed in [SenderId::actor(1), SenderId::learner()] {
+        let header = Header::new::<TransitionBatch>(net.run.clone(), claimed, 0, 1);
+        p.publish_raw(proto::encode(&header, &valid).expect("encode"))
+            .expect("raw");
+        let header = Header::new::<Metrics>(net.run.clone(), claimed, 0, 1);
+        m.publish_raw(proto::encode(&header, &Metrics::default()).expect("encode"))
+            .expect("raw");
+    }
+    p.publish(1, &valid).expect("publish");
+    m.publish(1, &Metrics::default()).expect("publish");
+    let got = sub
+        .recv_timeout(WAIT)
+        .expect("recv")
+        .expect("the honest one");
+    assert_eq!(got.header.sender, SenderId::actor(0), "{:?}", got.header);
+    let got = metrics_sub
+        .recv_timeout(WAIT)
+        .expect("recv")
+        .expect("the honest one");
+    assert_eq!(got.header.sender, SenderId::actor(0));
+    assert_eq!(sub.rejected_count(), 2);
+    assert_eq!(metrics_sub.rejected_count(), 2);
+    assert_eq!(sub.try_recv().expect("try_recv"), None);
+}
