@@ -683,23 +683,35 @@ fn a_header_naming_another_sender_than_its_key_is_rejected() {
         let header = Header::new::<TransitionBatch>(net.run.clone(), claimed, 0, 1);
         p.publish_raw(proto::encode(&header, &valid).expect("encode"))
             .expect("raw");
-        let header = Header::new::<Metrics>(net.run.clone(), claimed, 0, 1);
-        m.publish_raw(proto::encode(&header, &Metrics::default()).expect("encode"))
-            .expect("raw");
     }
     p.publish(1, &valid).expect("publish");
-    m.publish(1, &Metrics::default()).expect("publish");
     let got = sub
         .recv_timeout(WAIT)
         .expect("recv")
         .expect("the honest one");
     assert_eq!(got.header.sender, SenderId::actor(0), "{:?}", got.header);
-    let got = metrics_sub
-        .recv_timeout(WAIT)
-        .expect("recv")
-        .expect("the honest one");
-    assert_eq!(got.header.sender, SenderId::actor(0));
     assert_eq!(sub.rejected_count(), 2);
-    assert_eq!(metrics_sub.rejected_count(), 2);
+    // Metrics are best effort (a loaded machine may drop some): forged and honest ones in
+    // rounds until an honest one arrived and two forged ones were rejected; no forged one is
+    // ever delivered.
+    let deadline = Instant::now() + WAIT;
+    let mut honest = 0;
+    while (honest == 0 || metrics_sub.rejected_count() < 2) && Instant::now() < deadline {
+        for claimed in [SenderId::actor(1), SenderId::learner()] {
+            let header = Header::new::<Metrics>(net.run.clone(), claimed, 0, 1);
+            m.publish_raw(proto::encode(&header, &Metrics::default()).expect("encode"))
+                .expect("raw");
+        }
+        m.publish(1, &Metrics::default()).expect("publish");
+        while let Some(got) = metrics_sub
+            .recv_timeout(Duration::from_millis(100))
+            .expect("recv")
+        {
+            assert_eq!(got.header.sender, SenderId::actor(0));
+            honest += 1;
+        }
+    }
+    assert!(honest > 0, "no honest metrics arrived");
+    assert!(metrics_sub.rejected_count() >= 2);
     assert_eq!(sub.try_recv().expect("try_recv"), None);
 }
