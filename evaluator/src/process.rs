@@ -298,7 +298,11 @@ pub fn run(
             && version >= il_epochs
             && validated != Some(version)
             && (trained >= next_val_due || finished);
-        if (val_due || due || finished) && unusable == Some(version) {
+        if !(val_due || due || finished) {
+            let _ = weights.next(Duration::from_millis(200))?;
+            continue;
+        }
+        if unusable == Some(version) {
             if finished {
                 return Err(ProcessError::Other(format!(
                     "the run's final weights (version {version}) are unusable; see the warnings"
@@ -307,8 +311,10 @@ pub fn run(
             let _ = weights.next(Duration::from_millis(200))?;
             continue;
         }
-        if (val_due || due || finished) && unusable != Some(version) {
-            if let Err(e) = net_from_weights(&w.body, &net_cfg) {
+        // Decoded once per version that is due, for the validation point and the report.
+        let net = match net_from_weights(&w.body, &net_cfg) {
+            Ok(net) => net,
+            Err(e) => {
                 // Skip and count: a later version may be fine (an actor does the same).
                 bad_weights += 1;
                 unusable = Some(version);
@@ -320,9 +326,8 @@ pub fn run(
                 let _ = metrics.publish(version, &m);
                 continue;
             }
-        }
+        };
         if val_due {
-            let net = net_from_weights(&w.body, &net_cfg).map_err(ProcessError::Other)?;
             let point = validate(spec, &net, opts.threads, trained, started.elapsed())?;
             append_validation(opts, &point)?;
             metrics.publish(version, &point.metrics(trained))?;
@@ -335,7 +340,6 @@ pub fn run(
             let _ = weights.next(Duration::from_millis(200))?;
             continue;
         }
-        let net = net_from_weights(&w.body, &net_cfg).map_err(ProcessError::Other)?;
         tracing::info!(
             version,
             trained,

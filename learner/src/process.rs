@@ -206,6 +206,14 @@ impl Learner<'_> {
         }
     }
 
+    /// The indices of the actors alive now, ascending, each once.
+    fn live_actor_ids(&self) -> Vec<u32> {
+        let mut ids: Vec<u32> = self.actors_alive.iter().map(|m| m.sender.index).collect();
+        ids.sort_unstable();
+        ids.dedup();
+        ids
+    }
+
     fn phase(&self) -> RunPhase {
         if !self.core.counters().imitation_done {
             RunPhase::Imitation
@@ -220,9 +228,7 @@ impl Learner<'_> {
     /// [`proto::control::MAX_CREDIT_GRANTS`], lowest ids first); a failed publication is counted and
     /// logged, never fatal (the next one repeats everything).
     fn publish_control(&mut self) {
-        let mut ids: Vec<u32> = self.actors_alive.iter().map(|m| m.sender.index).collect();
-        ids.sort_unstable();
-        ids.dedup();
+        let mut ids = self.live_actor_ids();
         ids.truncate(proto::control::MAX_CREDIT_GRANTS);
         let credits = ids
             .iter()
@@ -659,10 +665,7 @@ pub fn run(
             last_tick = Instant::now();
             l.publish_metrics()?;
             // Re-acknowledge periodically: an actor that missed an ack learns where to go on.
-            let mut ids: Vec<u32> = l.actors_alive.iter().map(|m| m.sender.index).collect();
-            ids.sort_unstable();
-            ids.dedup();
-            for id in ids {
+            for id in l.live_actor_ids() {
                 l.ack(id);
             }
             if checkpoint_due {
