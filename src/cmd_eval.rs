@@ -258,6 +258,7 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
             net: None,
             gamma: 0.9,
             human_model: HumanModel::Orca,
+            terminal_previews: false,
             orca_safety_space_m: args.safety_space_m,
         };
         let reports = evaluate_subject(
@@ -285,11 +286,8 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
         let method = model.method;
         let label = subject_label(input, &model, kind);
         let subject = Subject {
-            method,
-            net: Some(&model.net),
-            gamma: model.train.gamma,
-            human_model: model.train.human_model.into(),
             orca_safety_space_m: args.safety_space_m,
+            ..Subject::learned(method, &model.net, &model.train)
         };
         let bar = progress(per_subject, &label.chars().take(12).collect::<String>());
         let reports = evaluate_subject(

@@ -395,7 +395,8 @@ fn episode(a: EpisodeArgs) -> anyhow::Result<Vec<PathBuf>> {
         Some((l, _)) => {
             let train = &l.train;
             let human_model: HumanModel = train.human_model.into();
-            let mut la = Lookahead::new(train.gamma, human_model, method.human_order());
+            let mut la = Lookahead::new(train.gamma, human_model, method.human_order())
+                .with_terminal_previews(train.terminal_previews);
             let net = &l.net;
             run_episode(
                 &mut env,

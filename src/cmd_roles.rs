@@ -220,13 +220,7 @@ pub fn evaluator(args: EvaluatorArgs) -> anyhow::Result<()> {
     if let Some(path) = &args.checkpoint {
         // Offline: the checkpoint or model says what it is.
         let (model, _) = learner::model::load_policy(path)?;
-        let subject = evaluator::Subject {
-            method: model.method,
-            net: Some(&model.net),
-            gamma: model.train.gamma,
-            human_model: model.train.human_model.into(),
-            orca_safety_space_m: 0.0,
-        };
+        let subject = evaluator::Subject::learned(model.method, &model.net, &model.train);
         // The simulator config the policy was trained with (the method's switches applied).
         let base = model.sim.clone();
         let threads = std::thread::available_parallelism().map_or(1, |n| n.get());

@@ -303,7 +303,8 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
     }
 
     // Deep V-learning.
-    let mut lookahead = Lookahead::new(train.gamma, train.human_model.into(), method.human_order());
+    let mut lookahead = Lookahead::new(train.gamma, train.human_model.into(), method.human_order())
+        .with_terminal_previews(train.terminal_previews);
     let mut window: VecDeque<Outcome> = VecDeque::with_capacity(100);
     let first = core.counters().rl_episodes;
     let bar = progress_bar(train.rl.episodes, "rl");

@@ -147,7 +147,8 @@ pub fn run(
         spec.train.gamma,
         spec.train.human_model.into(),
         spec.method.human_order(),
-    );
+    )
+    .with_terminal_previews(spec.train.terminal_previews);
     let mut st = State {
         outbox: BTreeMap::new(),
         outbox_versions: BTreeMap::new(),

@@ -17,6 +17,8 @@ pub struct Subject<'a> {
     pub net: Option<&'a ValueNet>,
     pub gamma: f64,
     pub human_model: HumanModel,
+    /// Terminal candidates scored by their reward alone (`TrainConfig::terminal_previews`).
+    pub terminal_previews: bool,
     /// Extra ORCA radius for the ORCA baseline.
     pub orca_safety_space_m: f64,
 }
@@ -24,11 +26,17 @@ pub struct Subject<'a> {
 impl<'a> Subject<'a> {
     /// The greedy policy of a run's method with `net`, under the run's γ and human model.
     pub fn of_run(spec: &policy::method::RunSpec, net: &'a ValueNet) -> Self {
+        Self::learned(spec.method, net, &spec.train)
+    }
+
+    /// The greedy policy of `method` with `net`, under `train`'s lookahead settings.
+    pub fn learned(method: Method, net: &'a ValueNet, train: &policy::method::TrainConfig) -> Self {
         Self {
-            method: spec.method,
+            method,
             net: Some(net),
-            gamma: spec.train.gamma,
-            human_model: spec.train.human_model.into(),
+            gamma: train.gamma,
+            human_model: train.human_model.into(),
+            terminal_previews: train.terminal_previews,
             orca_safety_space_m: 0.0,
         }
     }
@@ -85,7 +93,8 @@ pub fn evaluate(
                         subject.gamma,
                         subject.human_model,
                         subject.method.human_order(),
-                    );
+                    )
+                    .with_terminal_previews(subject.terminal_previews);
                     for &(s, k) in jobs.iter().skip(w).step_by(threads) {
                         let env = match &mut envs[s] {
                             Some(env) => env,

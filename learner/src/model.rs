@@ -236,7 +236,8 @@ impl Model {
                             self.train.gamma,
                             self.train.human_model.into(),
                             self.method.human_order(),
-                        );
+                        )
+                        .with_terminal_previews(self.train.terminal_previews);
                         for (i, &seed) in seeds.iter().enumerate().skip(w).step_by(threads) {
                             let env = match &mut env {
                                 Some(env) => env,
@@ -750,13 +751,7 @@ mod tests {
         assert_eq!(m.run_check(1).unwrap(), m.check);
         m.verify_check(3, 0.0).unwrap();
         // What evaluator::evaluate reports for the same policy and seeds.
-        let subject = evaluator::Subject {
-            method: m.method,
-            net: Some(&m.net),
-            gamma: m.train.gamma,
-            human_model: m.train.human_model.into(),
-            orca_safety_space_m: 0.0,
-        };
+        let subject = evaluator::Subject::learned(m.method, &m.net, &m.train);
         let r = evaluator::evaluate(subject, &m.sim, &[m.setting], 1000, 3, 1).unwrap();
         let a = r[0].aggregate;
         let count = |o| m.check.iter().filter(|e| e.outcome == o).count() as u32;

@@ -6,6 +6,11 @@
 //! reward switches of the environment's config (the method's). The humans' next states come from
 //! the simulator's own next ORCA step (CrowdNav's `query_env`) or, as an option, from constant
 //! velocity.
+//!
+//! A candidate whose step ends the episode (collision, goal, time limit) is scored as
+//! `R(s, a) + γ·V(s'_a)` like any other, as CrowdNav does; with
+//! [`Lookahead::with_terminal_previews`] it is scored `R(s, a)` alone, as the training target
+//! `y = r` treats the last step of an episode (the Env 3 experiment, `docs/REPRODUCTION.md`).
 
 use sim::{evaluate_step, Env, HumanState, Vec2};
 
@@ -44,6 +49,9 @@ pub struct Lookahead {
     obs: Vec<HumanObs>,
     order_buf: Vec<(f64, usize)>,
     discount_last: f64,
+    terminal_previews: bool,
+    /// Per candidate of the last decision: its step ends the episode.
+    terminal: Vec<bool>,
 }
 
 impl Lookahead {
@@ -63,6 +71,25 @@ impl Lookahead {
             obs: Vec::new(),
             order_buf: Vec::new(),
             discount_last: 0.0,
+            terminal_previews: false,
+            terminal: Vec::new(),
+        }
+    }
+
+    /// Scores a candidate whose step ends the episode by its reward alone (no bootstrap from
+    /// the value of the state after it). Off by default (CrowdNav).
+    pub fn with_terminal_previews(mut self, on: bool) -> Self {
+        self.terminal_previews = on;
+        self
+    }
+
+    /// The candidate's lookahead value: `r + discount·v`, or `r` for a terminal step when
+    /// terminal previews are on.
+    fn score(&self, reward: f64, value: f32, terminal: bool, discount: f64) -> f64 {
+        if terminal && self.terminal_previews {
+            reward
+        } else {
+            reward + discount * value as f64
         }
     }
 
@@ -76,7 +103,8 @@ impl Lookahead {
         self.rewards
             .iter()
             .zip(&self.values)
-            .map(|(r, v)| r + self.discount_last * *v as f64)
+            .zip(&self.terminal)
+            .map(|((r, v), t)| self.score(*r, *v, *t, self.discount_last))
     }
 
     /// Evaluates every action of `env`'s action set and returns the best.
@@ -107,6 +135,7 @@ impl Lookahead {
 
         self.batch.clear();
         self.rewards.clear();
+        self.terminal.clear();
         for a in 0..n_actions {
             let eval = match self.model {
                 HumanModel::Orca => env.preview(a).expect("index within the action set"),
@@ -126,6 +155,7 @@ impl Lookahead {
                 }
             };
             self.rewards.push(eval.reward.total);
+            self.terminal.push(eval.outcome.is_terminal());
             featurize_into(
                 &eval.robot_next,
                 &self.obs,
@@ -142,8 +172,14 @@ impl Lookahead {
             action: 0,
             value: f64::NEG_INFINITY,
         };
-        for (a, (r, v)) in self.rewards.iter().zip(&self.values).enumerate() {
-            let value = r + discount * *v as f64;
+        for (a, ((r, v), t)) in self
+            .rewards
+            .iter()
+            .zip(&self.values)
+            .zip(&self.terminal)
+            .enumerate()
+        {
+            let value = self.score(*r, *v, *t, discount);
             // Strictly greater: ties keep the lower index. A NaN never wins.
             if value > best.value {
                 best = Decision { action: a, value };
@@ -153,5 +189,55 @@ impl Lookahead {
             return Err(PolicyError::NonFinite("lookahead values"));
         }
         Ok(best)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::joint::HumanOrder;
+    use crate::{NetConfig, ValueNet};
+    use sim::{Setting, SimConfig};
+
+    /// Walks ORCA episodes of env3-invisible (the robot meets the cup) and compares both
+    /// scorings on every state: equal for candidates that continue the episode, the reward
+    /// alone for terminal ones under terminal previews; until terminal candidates were seen.
+    #[test]
+    fn terminal_previews_score_a_terminal_candidate_by_its_reward_alone() {
+        let setting: Setting = "env3-invisible".parse().unwrap();
+        let mut env = Env::new(SimConfig::default(), setting, 0).unwrap();
+        let net = ValueNet::new(NetConfig::sarl(), 5).unwrap();
+        let mut plain = Lookahead::new(0.9, HumanModel::Orca, HumanOrder::AsGiven);
+        let mut terminal =
+            Lookahead::new(0.9, HumanModel::Orca, HumanOrder::AsGiven).with_terminal_previews(true);
+        let (mut terminal_seen, mut running_seen) = (0, 0);
+        for seed in 0..20 {
+            env.reset(seed).unwrap();
+            while !env.is_done() {
+                plain.decide(&mut env, &net).unwrap();
+                terminal.decide(&mut env, &net).unwrap();
+                let a: Vec<f64> = plain.last_values().collect();
+                let b: Vec<f64> = terminal.last_values().collect();
+                for (i, (a, b)) in a.iter().zip(&b).enumerate() {
+                    let eval = env.preview(i).unwrap();
+                    if eval.outcome.is_terminal() {
+                        terminal_seen += 1;
+                        assert_eq!(*b, eval.reward.total, "action {i}");
+                    } else {
+                        running_seen += 1;
+                        assert_eq!(a, b, "action {i}");
+                    }
+                }
+                let action = env.orca_robot_action(0.0);
+                env.step(action).unwrap();
+            }
+            if terminal_seen > 10 {
+                break;
+            }
+        }
+        assert!(
+            terminal_seen > 10 && running_seen > 100,
+            "{terminal_seen} {running_seen}"
+        );
     }
 }

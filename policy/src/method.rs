@@ -221,6 +221,11 @@ pub struct TrainConfig {
     /// Discount per second at v_pref: values use γ^{dt·v_pref} per step.
     pub gamma: f64,
     pub human_model: HumanModelName,
+    /// The lookahead scores a candidate whose step ends the episode (collision, goal, time
+    /// limit) by its reward alone, as the training target `y = r` treats it. Default false:
+    /// `r + γ·V(s')` for every candidate, as CrowdNav (the Env 3 experiment,
+    /// `docs/REPRODUCTION.md`).
+    pub terminal_previews: bool,
     pub imitation: ImitationConfig,
     pub rl: RlConfig,
     /// Write a checkpoint every this many RL episodes (0: only at the end).
@@ -242,6 +247,7 @@ impl Default for TrainConfig {
         Self {
             gamma: 0.9,
             human_model: HumanModelName::Orca,
+            terminal_previews: false,
             imitation: ImitationConfig::default(),
             rl: RlConfig::default(),
             checkpoint_every_episodes: 1000,
