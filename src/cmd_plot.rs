@@ -185,7 +185,7 @@ fn bars(a: BarsArgs) -> anyhow::Result<Vec<PathBuf>> {
         settings: settings.iter().map(|&s| pretty_setting(s)).collect(),
         methods: groups
             .iter()
-            .map(|g| format!("{} ({})", g.method, g.members.len()))
+            .map(|g| format!("{} ({})", g.method, g.runs_per_setting()))
             .collect(),
         cells: settings
             .iter()
@@ -335,7 +335,7 @@ fn ablation(a: AblationArgs) -> anyhow::Result<Vec<PathBuf>> {
         }),
         variants: variants
             .iter()
-            .map(|(m, label)| format!("{label} ({})", find(m).map_or(0, |g| g.members.len())))
+            .map(|(m, label)| format!("{label} ({})", find(m).map_or(0, |g| g.runs_per_setting())))
             .collect(),
         outcomes: variants
             .iter()
