@@ -1,5 +1,6 @@
-//! Emulated hosts for `tests/multihost.rs` and `benches/multihost.rs`: network namespaces
-//! joined by veth pairs (made here, removed on drop), a test CA from `deploy/make-test-ca.sh`,
+//! Emulated hosts for `tests/multihost.rs`, `tests/partitions.rs` and `benches/multihost.rs`:
+//! network namespaces joined by veth pairs (made here, removed on drop; a link can be taken down
+//! or given a `tc` queueing discipline), a test CA from `deploy/make-test-ca.sh`,
 //! the `deploy/` configs adapted to the namespaces, processes started inside a namespace, and
 //! helper processes (observer, rogue publisher, latency probes) that re-run the calling test or
 //! bench binary inside a namespace ([`helper_main`]).
@@ -93,60 +94,91 @@ fn sweep_stale() {
     }
 }
 
-/// Three emulated hosts: `hub` (router, learner, evaluator) and two actor hosts, each joined to
-/// the hub by its own veth pair: actor host k (0, 1) is `10.201.<k+1>.2/24` on its `eth0`, the
-/// hub `10.201.<k+1>.1/24` on `to-a<k+1>`. The namespaces (and with them the veths) are removed
-/// on drop. Names are unique per process and tag.
+/// Emulated hosts: `hub` (router, learner, evaluator) and two actor hosts, each joined to the
+/// hub by its own veth pair: actor host k (0, 1) is `10.201.<k+1>.2/24` on its `eth0`, the hub
+/// `10.201.<k+1>.1/24` on `to-a<k+1>`. [`Hosts::create_with_learner_host`] adds a fourth host for
+/// the learner alone (`10.201.3.2/24` on its `eth0`, the hub `10.201.3.1/24` on `to-ln`), so the
+/// learner's link can fail by itself. The namespaces (and with them the veths and any queueing
+/// discipline on them) are removed on drop. Names are unique per process and tag.
 pub struct Hosts {
     pub hub: String,
     pub actors: [String; 2],
+    /// The learner's own host, if made ([`Hosts::create_with_learner_host`]).
+    pub learner: Option<String>,
+    /// Every host but the hub, with the hub's end of its link.
+    spokes: Vec<(String, String)>,
     created: Vec<String>,
 }
 
 impl Hosts {
     pub fn create(tag: &str) -> Result<Self, String> {
+        Self::make(tag, false)
+    }
+
+    /// [`Hosts::create`] plus the learner's own host.
+    pub fn create_with_learner_host(tag: &str) -> Result<Self, String> {
+        Self::make(tag, true)
+    }
+
+    fn make(tag: &str, learner_host: bool) -> Result<Self, String> {
         sweep_stale();
         let pid = std::process::id();
         let name = |role: &str| format!("fmh{pid}-{tag}-{role}");
         let mut h = Hosts {
             hub: name("hub"),
             actors: [name("a1"), name("a2")],
+            learner: learner_host.then(|| name("ln")),
+            spokes: Vec::new(),
             created: Vec::new(),
         };
-        for ns in [h.hub.clone(), h.actors[0].clone(), h.actors[1].clone()] {
-            ip(&["netns", "add", &ns])?;
-            h.created.push(ns.clone());
-            ip(&["-n", &ns, "link", "set", "lo", "up"])?;
-        }
+        let hub = h.hub.clone();
+        h.add_namespace(&hub)?;
         for k in 0..2 {
             let a = h.actors[k].clone();
-            let hub_if = format!("to-a{}", k + 1);
-            ip(&[
-                "link", "add", "eth0", "netns", &a, "type", "veth", "peer", "name", &hub_if,
-                "netns", &h.hub,
-            ])?;
-            ip(&[
-                "-n",
-                &h.hub,
-                "addr",
-                "add",
-                &format!("{}/24", Self::hub_addr(k)),
-                "dev",
-                &hub_if,
-            ])?;
-            ip(&[
-                "-n",
-                &a,
-                "addr",
-                "add",
-                &format!("10.201.{}.2/24", k + 1),
-                "dev",
-                "eth0",
-            ])?;
-            ip(&["-n", &h.hub, "link", "set", &hub_if, "up"])?;
-            ip(&["-n", &a, "link", "set", "eth0", "up"])?;
+            h.add_spoke(&a, &format!("to-a{}", k + 1), k as u8 + 1)?;
+        }
+        if let Some(l) = h.learner.clone() {
+            h.add_spoke(&l, "to-ln", 3)?;
         }
         Ok(h)
+    }
+
+    fn add_namespace(&mut self, ns: &str) -> Result<(), String> {
+        ip(&["netns", "add", ns])?;
+        self.created.push(ns.to_string());
+        ip(&["-n", ns, "link", "set", "lo", "up"])
+    }
+
+    /// Namespace `ns` joined to the hub: `10.201.<subnet>.2/24` on its `eth0`, the hub
+    /// `10.201.<subnet>.1/24` on `hub_if`.
+    fn add_spoke(&mut self, ns: &str, hub_if: &str, subnet: u8) -> Result<(), String> {
+        self.add_namespace(ns)?;
+        let hub = self.hub.clone();
+        ip(&[
+            "link", "add", "eth0", "netns", ns, "type", "veth", "peer", "name", hub_if, "netns",
+            &hub,
+        ])?;
+        self.spokes.push((ns.to_string(), hub_if.to_string()));
+        ip(&[
+            "-n",
+            &hub,
+            "addr",
+            "add",
+            &format!("10.201.{subnet}.1/24"),
+            "dev",
+            hub_if,
+        ])?;
+        ip(&[
+            "-n",
+            ns,
+            "addr",
+            "add",
+            &format!("10.201.{subnet}.2/24"),
+            "dev",
+            "eth0",
+        ])?;
+        ip(&["-n", &hub, "link", "set", hub_if, "up"])?;
+        ip(&["-n", ns, "link", "set", "eth0", "up"])
     }
 
     /// The hub's address as seen from actor host `k`.
@@ -154,16 +186,72 @@ impl Hosts {
         format!("10.201.{}.1", k + 1)
     }
 
+    /// The hub's address as seen from the learner's host.
+    pub fn learner_hub_addr() -> String {
+        "10.201.3.1".into()
+    }
+
     /// Takes actor host `k`'s only link down or up.
     pub fn set_actor_link(&self, k: usize, up: bool) -> Result<(), String> {
+        self.set_link(&self.actors[k], up)
+    }
+
+    /// Takes the only link of host `ns` (an actor's or the learner's host) down or up.
+    pub fn set_link(&self, ns: &str, up: bool) -> Result<(), String> {
+        self.hub_end(ns)?;
         ip(&[
             "-n",
-            &self.actors[k],
+            ns,
             "link",
             "set",
             "eth0",
             if up { "up" } else { "down" },
         ])
+    }
+
+    /// Puts the queueing discipline `qdisc` (`tc` words, e.g. `netem loss 10% delay 50ms`) at
+    /// the root of both ends of host `ns`'s link, so traffic in both directions goes through it;
+    /// `None` removes it from both ends.
+    pub fn set_link_qdisc(&self, ns: &str, qdisc: Option<&[&str]>) -> Result<(), String> {
+        let hub_if = self.hub_end(ns)?;
+        for (n, dev) in [(ns, "eth0"), (self.hub.as_str(), hub_if)] {
+            let mut args = vec!["-n", n, "qdisc"];
+            match qdisc {
+                Some(q) => {
+                    args.extend(["replace", "dev", dev, "root"]);
+                    args.extend(q);
+                }
+                None => args.extend(["del", "dev", dev, "root"]),
+            }
+            tc(&args)?;
+        }
+        Ok(())
+    }
+
+    /// The hub's end of host `ns`'s link.
+    fn hub_end(&self, ns: &str) -> Result<&str, String> {
+        self.spokes
+            .iter()
+            .find(|(n, _)| n == ns)
+            .map(|(_, h)| h.as_str())
+            .ok_or_else(|| format!("{ns} is not a host joined to the hub"))
+    }
+}
+
+/// Runs `tc ARGS`, returning its error output on failure.
+pub fn tc(args: &[&str]) -> Result<(), String> {
+    let o = Command::new("tc")
+        .args(args)
+        .output()
+        .map_err(|e| format!("tc {}: {e}", args.join(" ")))?;
+    if o.status.success() {
+        Ok(())
+    } else {
+        Err(format!(
+            "tc {}: {}",
+            args.join(" "),
+            String::from_utf8_lossy(&o.stderr).trim()
+        ))
     }
 }
 
@@ -351,6 +439,41 @@ impl Procs {
     pub fn running(&mut self, name: &str) -> Option<bool> {
         let (_, c) = self.list.iter_mut().find(|(n, _)| n == name)?;
         Some(matches!(c.try_wait(), Ok(None)))
+    }
+
+    /// The process id of `name` (the program's own: `ip netns exec` execs it).
+    pub fn pid(&self, name: &str) -> Option<u32> {
+        self.list
+            .iter()
+            .find(|(n, _)| n == name)
+            .map(|(_, c)| c.id())
+    }
+
+    /// Sends `signal` to `name` (only to that process, by its id) if it is still running.
+    pub fn signal(&mut self, name: &str, signal: i32) -> Result<(), String> {
+        if self.running(name) != Some(true) {
+            return Err(format!("{name} is not running"));
+        }
+        let pid = self.pid(name).expect("running") as libc::pid_t;
+        // SAFETY: kill(2) on our own, not yet reaped child: the pid cannot have been reused.
+        if unsafe { libc::kill(pid, signal) } == 0 {
+            Ok(())
+        } else {
+            Err(format!(
+                "signal {signal} to {name}: {}",
+                std::io::Error::last_os_error()
+            ))
+        }
+    }
+
+    /// Kills `name` (SIGKILL, by its id), reaps it and forgets it, so that a process of the same
+    /// name can be started again.
+    pub fn kill(&mut self, name: &str) {
+        if let Some(i) = self.list.iter().position(|(n, _)| n == name) {
+            let (_, mut c) = self.list.remove(i);
+            let _ = c.kill();
+            let _ = c.wait();
+        }
     }
 
     /// The processes that have exited, with their status.
