@@ -1,7 +1,10 @@
 #!/usr/bin/env bash
 # Regenerates the README's pictures from the shipped models (models/) and, for the learning
 # curves, the runs they came from (runs/reproduce, made by `fsrl reproduce`; docs/REPRODUCTION.md).
-# Every model trained on env1-invisible with seed 0 is evaluated with ORCA on all six settings.
+# Every model trained on env1-invisible with seed 0 is evaluated with ORCA on all six settings
+# (bars.png: how a policy trained in one setting does in the others); every shipped model is
+# evaluated on the setting it was trained in (docs/results/grid/<model>.{md,json}, kept while
+# newer than the model) and drawn as the paper's Fig. 5 grid (bars-grid.png).
 #   docs/make-pictures.sh [FSRL_BINARY]
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -24,4 +27,21 @@ curves=("${curves[@]%.log}")
 "$FSRL" plot curves $(printf '%s\n' "${curves[@]}" | sort -u) --out "$OUT/curves"
 "$FSRL" plot episode models/fsrl-env1-invisible-s0.fsrlm --seed 1000 --out "$OUT/episode" --gif-size 300 --stride 2
 cp "$RUNS/eval-six/eval.md" "$OUT/eval.md"
+GRID=docs/results/grid
+mkdir -p "$GRID"
+for m in models/*.fsrlm; do
+  name=$(basename "$m" .fsrlm)
+  setting=$(echo "$name" | grep -oE 'env[123]-(in)?visible')
+  if [ ! "$GRID/$name.json" -nt "$m" ]; then
+    "$FSRL" eval "$m" --settings "$setting" --episodes "$EPISODES" --out "$RUNS/eval-grid/$name"
+    cp "$RUNS/eval-grid/$name/eval.json" "$GRID/$name.json"
+    cp "$RUNS/eval-grid/$name/eval.md" "$GRID/$name.md"
+  fi
+done
+# The paper's methods (the ablation variants are in ablation.png).
+grid=()
+for f in "$GRID"/*.json; do
+  case "$(basename "$f")" in lstm-rl-*|sarl-env*|fsrl-*) grid+=("$f") ;; esac
+done
+"$FSRL" plot bars "${grid[@]}" --title "Each method trained and tested in each setting (500 test episodes)" --out "$OUT/bars-grid"
 echo "pictures in $OUT"

@@ -164,6 +164,21 @@ fn pretty_setting(s: Setting) -> String {
     format!("Env {} ({vis})", env.trim_start_matches("env"))
 }
 
+/// A method's runs per setting: `3`, or `1–3` where the settings have different numbers of runs
+/// (a grid whose seeds are not all trained yet).
+fn runs_label(g: &Group) -> String {
+    let counts: Vec<usize> = Setting::ALL
+        .iter()
+        .map(|&s| g.members.iter().filter(|m| m.setting(s).is_some()).count())
+        .filter(|&n| n > 0)
+        .collect();
+    match (counts.iter().min(), counts.iter().max()) {
+        (Some(lo), Some(hi)) if lo != hi => format!("{lo}–{hi}"),
+        (_, Some(hi)) => hi.to_string(),
+        _ => "0".into(),
+    }
+}
+
 fn bars(a: BarsArgs) -> anyhow::Result<Vec<PathBuf>> {
     let groups = group(load_sources(&a.sources)?);
     let settings: Vec<Setting> = Setting::ALL
@@ -185,13 +200,13 @@ fn bars(a: BarsArgs) -> anyhow::Result<Vec<PathBuf>> {
         settings: settings.iter().map(|&s| pretty_setting(s)).collect(),
         methods: groups
             .iter()
-            .map(|g| format!("{} ({})", g.method, g.runs_per_setting()))
+            .map(|g| format!("{} ({})", g.method, runs_label(g)))
             .collect(),
         cells: settings
             .iter()
             .map(|&s| groups.iter().map(|g| outcome_cell(g, s)).collect())
             .collect(),
-        interval_note: format!("{INTERVAL_NOTE}; (n) = runs"),
+        interval_note: format!("{INTERVAL_NOTE}; (n) = runs per setting"),
     };
     Ok(viz::save(&fig, &a.out)?)
 }
@@ -335,7 +350,7 @@ fn ablation(a: AblationArgs) -> anyhow::Result<Vec<PathBuf>> {
         }),
         variants: variants
             .iter()
-            .map(|(m, label)| format!("{label} ({})", find(m).map_or(0, |g| g.runs_per_setting())))
+            .map(|(m, label)| format!("{label} ({})", find(m).map_or("0".into(), runs_label)))
             .collect(),
         outcomes: variants
             .iter()
