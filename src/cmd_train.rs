@@ -173,10 +173,12 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
         .out
         .clone()
         .unwrap_or_else(|| resolved.default_run_dir());
-    let latest = run_checkpoint(&out, args.resume)?;
     let ckpt_dir = out.join("checkpoints");
     std::fs::create_dir_all(&ckpt_dir)
         .with_context(|| format!("cannot create {}", ckpt_dir.display()))?;
+    // One training per run directory, as the learner process holds it in multi-process mode.
+    let _lock = learner::store::RunLock::acquire(&out)?;
+    let latest = run_checkpoint(&out, args.resume)?;
 
     let (mut core, resolved) = if args.resume {
         let mut loaded = checkpoint::load(&latest)?;

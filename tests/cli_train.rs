@@ -1,5 +1,6 @@
 //! `fsrl train` end to end: a short single-process run leaves a complete run directory, refuses
-//! to overwrite it, resumes it, checkpoints on SIGINT, and reports bad configuration at once.
+//! to overwrite it or to share it with a second training, resumes it, checkpoints on SIGINT, and
+//! reports bad configuration at once.
 
 use std::path::Path;
 use std::process::{Command, Stdio};
@@ -148,6 +149,17 @@ fn sigint_writes_a_checkpoint_and_the_run_resumes() {
         assert!(child.try_wait().unwrap().is_none(), "trainer exited early");
         std::thread::sleep(Duration::from_millis(50));
     }
+    // A second training on the same run directory is refused while this one holds it.
+    let second = short(&out)
+        .args(["--resume", "--rl-episodes", "1"])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&second.stderr);
+    assert!(!second.status.success(), "{err}");
+    assert!(
+        err.contains(&child.id().to_string()),
+        "names the holder: {err}"
+    );
     let status = Command::new("kill")
         .args(["-INT", &child.id().to_string()])
         .status()

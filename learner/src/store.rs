@@ -107,7 +107,7 @@ impl std::fmt::Debug for Probe {
 /// Why the store cannot be opened.
 #[derive(Debug, thiserror::Error)]
 pub enum StoreError {
-    #[error("run directory {dir} is in use by another learner (pid {pid})")]
+    #[error("run directory {dir} is in use by another learner or training (pid {pid})")]
     Locked { dir: PathBuf, pid: String },
     #[error("{path}: {source}")]
     Io {
