@@ -210,6 +210,11 @@ impl Group {
     /// settings, the seeds when each run covers only the setting it was trained in (the grid of
     /// `fsrl reproduce`).
     pub fn runs_per_setting(&self) -> usize {
+        self.runs_by_setting().max().unwrap_or(0)
+    }
+
+    /// How many runs have a result on each setting that has any.
+    pub fn runs_by_setting(&self) -> impl Iterator<Item = usize> + '_ {
         Setting::ALL
             .iter()
             .map(|&s| {
@@ -218,8 +223,7 @@ impl Group {
                     .filter(|m| m.setting(s).is_some())
                     .count()
             })
-            .max()
-            .unwrap_or(0)
+            .filter(|&n| n > 0)
     }
 
     /// The member's own record when the group has exactly one run with this setting.

@@ -167,15 +167,10 @@ fn pretty_setting(s: Setting) -> String {
 /// A method's runs per setting: `3`, or `1–3` where the settings have different numbers of runs
 /// (a grid whose seeds are not all trained yet).
 fn runs_label(g: &Group) -> String {
-    let counts: Vec<usize> = Setting::ALL
-        .iter()
-        .map(|&s| g.members.iter().filter(|m| m.setting(s).is_some()).count())
-        .filter(|&n| n > 0)
-        .collect();
-    match (counts.iter().min(), counts.iter().max()) {
-        (Some(lo), Some(hi)) if lo != hi => format!("{lo}–{hi}"),
-        (_, Some(hi)) => hi.to_string(),
-        _ => "0".into(),
+    let (lo, hi) = (g.runs_by_setting().min(), g.runs_per_setting());
+    match lo {
+        Some(lo) if lo != hi => format!("{lo}–{hi}"),
+        _ => hi.to_string(),
     }
 }
 

@@ -30,19 +30,6 @@ use shm_support::ShmSnapshot;
 /// Longest wait for any one step.
 const STEP: Duration = Duration::from_secs(90);
 
-/// The helper processes re-run this test binary with only this test selected.
-fn helper_args() -> Vec<String> {
-    [
-        "--exact",
-        "helper_process_entry_point",
-        "--nocapture",
-        "--test-threads",
-        "1",
-    ]
-    .map(String::from)
-    .to_vec()
-}
-
 /// Not a test: the entry point of the helper processes (observer, rogue publishers) that the
 /// multi-host test starts inside namespaces. Does nothing when run as a test.
 #[test]
@@ -216,7 +203,7 @@ impl Cluster {
         let mut child = std::process::Command::new("ip")
             .args(["netns", "exec", &self.hosts.actors[0]])
             .arg(std::env::current_exe().unwrap())
-            .args(helper_args())
+            .args(mh::helper_args())
             .env(mh::HELPER_ENV, "rogue")
             .env(mh::CONFIG_ENV, config)
             .stdin(std::process::Stdio::null())
@@ -235,23 +222,7 @@ impl Cluster {
 
     /// Every log, for a failure message.
     fn logs(&self) -> String {
-        let mut names: Vec<PathBuf> = std::fs::read_dir(self.dir.path())
-            .map(|d| d.flatten().map(|e| e.path()).collect())
-            .unwrap_or_default();
-        names.sort();
-        let mut s = String::new();
-        for p in names {
-            if p.extension().is_some_and(|x| x == "log" || x == "err") {
-                let text = std::fs::read_to_string(&p).unwrap_or_default();
-                let tail: Vec<&str> = text.lines().rev().take(40).collect();
-                s += &format!("--- {} (last lines)\n", p.display());
-                for l in tail.iter().rev() {
-                    s += l;
-                    s += "\n";
-                }
-            }
-        }
-        s
+        mh::log_tails(self.dir.path(), 40)
     }
 }
 
@@ -305,7 +276,7 @@ fn training_across_emulated_hosts_survives_a_link_outage_and_refuses_rogue_weigh
     let obs = Observer::start_with(
         &mut c.procs,
         &hub,
-        &helper_args(),
+        &mh::helper_args(),
         &monitor,
         Some(&weights_reader),
         &obs_log,

@@ -63,19 +63,6 @@ const SEED: u64 = 0;
 /// What an actor logs (debug) for each episode an acknowledgement drops from its outbox.
 const DROPPED: &str = "acknowledged; dropped from the outbox";
 
-/// The helper processes re-run this test binary with only this test selected.
-fn helper_args() -> Vec<String> {
-    [
-        "--exact",
-        "helper_process_entry_point",
-        "--nocapture",
-        "--test-threads",
-        "1",
-    ]
-    .map(String::from)
-    .to_vec()
-}
-
 /// Not a test: the entry point of the observer helper that the partition test starts inside
 /// the hub's namespace. Does nothing when run as a test.
 #[test]
@@ -291,23 +278,7 @@ impl Cluster {
 
     /// Every log, for a failure message.
     fn logs(&self) -> String {
-        let mut names: Vec<PathBuf> = std::fs::read_dir(self.dir.path())
-            .map(|d| d.flatten().map(|e| e.path()).collect())
-            .unwrap_or_default();
-        names.sort();
-        let mut s = String::new();
-        for p in names {
-            if p.extension().is_some_and(|x| x == "log" || x == "err") {
-                let text = std::fs::read_to_string(&p).unwrap_or_default();
-                let tail: Vec<&str> = text.lines().rev().take(30).collect();
-                s += &format!("--- {} (last lines)\n", p.display());
-                for l in tail.iter().rev() {
-                    s += l;
-                    s += "\n";
-                }
-            }
-        }
-        s
+        mh::log_tails(self.dir.path(), 30)
     }
 }
 
@@ -695,7 +666,7 @@ fn every_episode_an_actor_dropped_on_an_ack_is_in_the_learners_store_despite_par
     let hub = c.hosts.hub.clone();
     let obs_log = c.log("observer");
     let monitor = c.monitor.clone();
-    let obs = Observer::start(&mut c.procs, &hub, &helper_args(), &monitor, &obs_log);
+    let obs = Observer::start(&mut c.procs, &hub, &mh::helper_args(), &monitor, &obs_log);
 
     let mut tl = Timeline::default();
     let outcome = scenario(&mut c, &mut tl);

@@ -55,21 +55,62 @@ pub fn netns_unavailable() -> Option<String> {
         .map(|e| format!("cannot create a network namespace: {e}"))
 }
 
-/// Runs `ip ARGS`, returning its error output on failure.
-pub fn ip(args: &[&str]) -> Result<(), String> {
-    let o = Command::new("ip")
+/// Runs `program ARGS`, returning its error output on failure.
+fn run(program: &str, args: &[&str]) -> Result<(), String> {
+    let o = Command::new(program)
         .args(args)
         .output()
-        .map_err(|e| format!("ip {}: {e}", args.join(" ")))?;
+        .map_err(|e| format!("{program} {}: {e}", args.join(" ")))?;
     if o.status.success() {
         Ok(())
     } else {
         Err(format!(
-            "ip {}: {}",
+            "{program} {}: {}",
             args.join(" "),
             String::from_utf8_lossy(&o.stderr).trim()
         ))
     }
+}
+
+/// Runs `ip ARGS`, returning its error output on failure.
+pub fn ip(args: &[&str]) -> Result<(), String> {
+    run("ip", args)
+}
+
+/// The arguments that make a test binary re-run only its `helper_process_entry_point` test
+/// (the helper processes a test starts inside namespaces, [`helper_main`]).
+pub fn helper_args() -> Vec<String> {
+    [
+        "--exact",
+        "helper_process_entry_point",
+        "--nocapture",
+        "--test-threads",
+        "1",
+    ]
+    .map(String::from)
+    .to_vec()
+}
+
+/// The last `lines` lines of every `.log` and `.err` file in `dir`, by name, for a failure
+/// message.
+pub fn log_tails(dir: &Path, lines: usize) -> String {
+    let mut names: Vec<PathBuf> = std::fs::read_dir(dir)
+        .map(|d| d.flatten().map(|e| e.path()).collect())
+        .unwrap_or_default();
+    names.sort();
+    let mut s = String::new();
+    for p in names {
+        if p.extension().is_some_and(|x| x == "log" || x == "err") {
+            let text = std::fs::read_to_string(&p).unwrap_or_default();
+            let tail: Vec<&str> = text.lines().rev().take(lines).collect();
+            s += &format!("--- {} (last lines)\n", p.display());
+            for l in tail.iter().rev() {
+                s += l;
+                s += "\n";
+            }
+        }
+    }
+    s
 }
 
 /// Removes namespaces left behind by runs that were killed before they could clean up
@@ -240,19 +281,7 @@ impl Hosts {
 
 /// Runs `tc ARGS`, returning its error output on failure.
 pub fn tc(args: &[&str]) -> Result<(), String> {
-    let o = Command::new("tc")
-        .args(args)
-        .output()
-        .map_err(|e| format!("tc {}: {e}", args.join(" ")))?;
-    if o.status.success() {
-        Ok(())
-    } else {
-        Err(format!(
-            "tc {}: {}",
-            args.join(" "),
-            String::from_utf8_lossy(&o.stderr).trim()
-        ))
-    }
+    run("tc", args)
 }
 
 impl Drop for Hosts {
