@@ -24,7 +24,8 @@ use crate::report::{EvalReport, Samples, SettingReport, SubjectReport, EVAL_KIND
 #[derive(Debug, clap::Args)]
 pub struct EvalArgs {
     /// Model files (.fsrlm, from `fsrl export-model`), checkpoints (.ckpt files) or run
-    /// directories of `fsrl train` (their checkpoints/latest.ckpt); a file's kind is read from
+    /// directories of `fsrl train` (their checkpoints/latest.ckpt, or the best validation snapshot
+    /// with `train.select = "best-validation"`); a file's kind is read from
     /// its first bytes.
     pub inputs: Vec<PathBuf>,
     /// Also evaluate the ORCA baseline.
@@ -61,19 +62,19 @@ pub struct Input {
     pub run_dir: Option<PathBuf>,
 }
 
-/// A run directory means its `checkpoints/latest.ckpt`; anything else is a model file or a
+/// A run directory means its `checkpoints/latest.ckpt` (with `train.select =
+/// "best-validation"`, its best validation snapshot); anything else is a model file or a
 /// checkpoint.
 pub fn resolve_input(path: &Path) -> anyhow::Result<Input> {
     if path.is_dir() {
-        let ckpt = path.join("checkpoints").join("latest.ckpt");
-        if !ckpt.exists() {
+        if !path.join("checkpoints").join("latest.ckpt").exists() {
             bail!(
                 "{}: a directory without checkpoints/latest.ckpt (not a run directory of `fsrl train`)",
                 path.display()
             );
         }
         Ok(Input {
-            checkpoint: ckpt,
+            checkpoint: crate::select::run_policy(path)?,
             run_dir: Some(path.to_path_buf()),
         })
     } else if path.exists() {

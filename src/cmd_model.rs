@@ -15,7 +15,8 @@ use crate::cmd_eval::resolve_input;
 
 #[derive(Debug, clap::Args)]
 pub struct ExportArgs {
-    /// A run directory of `fsrl train` (its checkpoints/latest.ckpt), a checkpoint, or a model
+    /// A run directory of `fsrl train` (its checkpoints/latest.ckpt, or its best validation
+    /// snapshot with `train.select = "best-validation"`), a checkpoint, or a model
     /// file (its check is recorded again).
     pub input: PathBuf,
     /// The model file to write (conventionally models/<method>-<setting>-s<seed>.fsrlm).

@@ -135,6 +135,9 @@ pub struct LearnerArgs {
 pub fn learner(args: LearnerArgs) -> anyhow::Result<()> {
     let stop = stop_flag()?;
     let r = args.common.resolve(|_| {})?;
+    if let Some(problem) = crate::select::distributed_problem(&r.file.train) {
+        anyhow::bail!("{problem}");
+    }
     let t = open_transport(&r, SenderId::new(Role::Learner, 0), &stop)?;
     let opts = learner::process::LearnerOptions {
         run_dir: r.run_dir(),

@@ -13,15 +13,17 @@ use anyhow::{bail, Context};
 use evaluator::{evaluate, Subject};
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use learner::checkpoint::{self, RunInfo};
+use learner::model::Model;
 use learner::LearnerCore;
 use policy::lookahead::Lookahead;
-use policy::method::RunSpec;
+use policy::method::{RunSpec, Select};
 use policy::rollout::{episode_seed, rollout, Behaviour};
 use serde::Serialize;
 use sim::{Env, Outcome};
 
 use crate::config::{run_checkpoint, Resolved, RunOverrides};
 use crate::report::{Report, SettingReport};
+use crate::select;
 
 /// Episode-seed streams of a run (see `policy::rollout::episode_seed`).
 const DEMO_STREAM: u64 = 0;
@@ -324,6 +326,14 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
     };
     let validate = |core: &LearnerCore, metrics: &mut std::fs::File| -> anyhow::Result<()> {
         let line = validation_line(core, &spec, wall0 + start.elapsed())?;
+        if train.select == Select::BestValidation {
+            // The snapshot before its line: a line always has its weights on disk.
+            let path = select::snapshot_path(&out, core.counters().rl_episodes);
+            let dir = select::snapshot_dir(&out);
+            std::fs::create_dir_all(&dir)
+                .with_context(|| format!("cannot create {}", dir.display()))?;
+            Model::from_core(core, &sim_cfg, &run_info)?.save(&path)?;
+        }
         writeln!(metrics, "{}", serde_json::to_string(&line)?)?;
         Ok(())
     };
@@ -408,7 +418,15 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
         "evaluating on {} test episodes of {setting} ...",
         train.eval_episodes
     );
-    let subject = Subject::of_run(&spec, core.online());
+    let selected = match train.select {
+        Select::Last => None,
+        Select::BestValidation => {
+            let path = select::run_policy(&out)?;
+            Some(Model::load(&path).with_context(|| format!("cannot load {}", path.display()))?)
+        }
+    };
+    let net = selected.as_ref().map_or(core.online(), |m| &m.net);
+    let subject = Subject::of_run(&spec, net);
     let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
     let results = evaluate(
         subject,
@@ -420,7 +438,10 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
     )?;
     let report = Report {
         method: method.name().to_string(),
-        policy_version: core.counters().policy_version,
+        policy_version: selected
+            .as_ref()
+            .map_or(core.counters(), |m| m.counters)
+            .policy_version,
         test_seed_start: train.test_seed_start,
         settings: results
             .iter()

@@ -144,6 +144,7 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
             bail!("{e:#}\n  - {}", problems.join("\n  - "));
         }
     };
+    problems.extend(crate::select::distributed_problem(&resolved.file.train));
     if !problems.is_empty() {
         return Err(sim::ConfigError { problems }.into());
     }

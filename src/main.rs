@@ -16,6 +16,7 @@ mod config;
 mod launch;
 mod picture;
 mod report;
+mod select;
 
 use std::process::ExitCode;
 

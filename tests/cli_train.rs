@@ -214,3 +214,89 @@ fn bad_run_configuration_lists_every_problem() {
         assert!(stderr.contains(needle), "missing {needle:?} in\n{stderr}");
     }
 }
+
+#[test]
+fn best_validation_selection_keeps_snapshots_and_the_run_uses_the_best() {
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = dir.path().join("select.toml");
+    std::fs::write(
+        &cfg,
+        "[train]\nselect = \"best-validation\"\nvalidation_every_episodes = 2\nvalidation_episodes = 10\n",
+    )
+    .unwrap();
+    let out = dir.path().join("run");
+    let o = short(&out)
+        .arg("--config")
+        .arg(&cfg)
+        .args(["--rl-episodes", "6"])
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{stderr}");
+    // One snapshot per validation, each a model file of that many RL episodes.
+    let validation: Vec<serde_json::Value> = std::fs::read_to_string(out.join("metrics.jsonl"))
+        .unwrap()
+        .lines()
+        .map(|l| serde_json::from_str::<serde_json::Value>(l).unwrap())
+        .filter(|v| v["phase"] == "validation")
+        .collect();
+    let at: Vec<u64> = validation
+        .iter()
+        .map(|v| v["episode"].as_u64().unwrap())
+        .collect();
+    assert_eq!(at, vec![0, 2, 4, 6]);
+    for ep in &at {
+        let snap = out.join(format!("checkpoints/validation/ep-{ep:06}.fsrlm"));
+        assert!(snap.is_file(), "missing {}", snap.display());
+    }
+    // The best by success, then fewer collisions, then the earliest, worked out here.
+    let key = |v: &serde_json::Value| {
+        (
+            v["success_rate"].as_f64().unwrap(),
+            -v["collision_rate"].as_f64().unwrap(),
+        )
+    };
+    let best = validation
+        .iter()
+        .fold(None::<&serde_json::Value>, |b, v| match b {
+            Some(b) if key(v) <= key(b) => Some(b),
+            _ => Some(v),
+        })
+        .unwrap()["episode"]
+        .as_u64()
+        .unwrap();
+    let said = format!("the snapshot after {best} RL episodes");
+    assert!(stderr.contains(&said), "final evaluation: {stderr}");
+    // export-model of the run directory writes that snapshot's weights.
+    let model = dir.path().join("m.fsrlm");
+    let o = fsrl()
+        .arg("export-model")
+        .arg(&out)
+        .arg("--out")
+        .arg(&model)
+        .args(["--check-episodes", "1"])
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(
+        stdout.contains(&format!(", {best} RL episodes,")),
+        "exported {stdout}"
+    );
+
+    // A distributed run cannot select (its evaluator keeps no weights): refused before it starts.
+    let o = fsrl()
+        .args(["train", "--config"])
+        .arg(&cfg)
+        .arg("--out")
+        .arg(dir.path().join("dist"))
+        .output()
+        .unwrap();
+    assert!(!o.status.success());
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        stderr.contains("best-validation") && stderr.contains("--single-process"),
+        "{stderr}"
+    );
+    assert!(!dir.path().join("dist").exists());
+}

@@ -240,6 +240,22 @@ pub struct TrainConfig {
     pub validation_episodes: u32,
     /// First validation seed (CrowdNav: 0..99, disjoint from test 1000.. and training seeds).
     pub validation_seed_start: u64,
+    /// Which weights are the run's trained policy: the last (default, as CrowdNav) or the
+    /// validation snapshot with the best success (`docs/REPRODUCTION.md`, Experiment 5).
+    pub select: Select,
+}
+
+/// Which weights of a run are its trained policy (`train.select`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Select {
+    /// The online network when training ends.
+    #[default]
+    Last,
+    /// The online network at the validation with the highest success rate (ties: fewer
+    /// collisions, then the earlier one); each validation keeps its weights as a model file.
+    /// Selection uses the validation seeds only, never the test seeds.
+    BestValidation,
 }
 
 impl Default for TrainConfig {
@@ -256,6 +272,7 @@ impl Default for TrainConfig {
             validation_every_episodes: 500,
             validation_episodes: 100,
             validation_seed_start: 0,
+            select: Select::Last,
         }
     }
 }
@@ -301,6 +318,14 @@ impl TrainConfig {
         }
         if self.eval_episodes == 0 {
             p.push("train.eval_episodes must be at least 1".into());
+        }
+        if self.select == Select::BestValidation
+            && (self.validation_every_episodes == 0 || self.validation_episodes == 0)
+        {
+            p.push(
+                "train.select = \"best-validation\" needs validations (train.validation_every_episodes and train.validation_episodes at least 1)"
+                    .into(),
+            );
         }
         let (v0, t0) = (self.validation_seed_start, self.test_seed_start);
         let (v1, t1) = (
@@ -381,6 +406,20 @@ mod tests {
         assert!(p[0].contains("overlap the test seeds 1000..1500"), "{p:?}");
         overlap.validation_every_episodes = 0;
         assert!(overlap.problems().is_empty());
+        // Selecting by validation needs validations.
+        let mut select = c.clone();
+        select.select = Select::BestValidation;
+        assert!(select.problems().is_empty());
+        select.validation_episodes = 0;
+        let p = select.problems();
+        assert_eq!(p.len(), 1, "{p:?}");
+        assert!(p[0].contains("best-validation"), "{p:?}");
+        let parsed: Select =
+            serde::de::Deserialize::deserialize(serde::de::value::StrDeserializer::<
+                serde::de::value::Error,
+            >::new("best-validation"))
+            .unwrap();
+        assert_eq!(parsed, Select::BestValidation);
     }
 }
 
