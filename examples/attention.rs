@@ -1,0 +1,109 @@
+//! How much of the crowd a SARL-network policy attends to: for each model file, greedy test
+//! episodes of its trained setting, and per decision the share of humans whose attention weight
+//! (of the chosen candidate) is below 0.01, the largest weight, and, in a collision, the weight
+//! the policy gave the human it hit at its last decision (`docs/REPRODUCTION.md`, Experiment 5).
+//!
+//! ```sh
+//! cargo run --release --example attention -- [--episodes 100] MODEL.fsrlm...
+//! ```
+
+use anyhow::{bail, Context};
+use learner::model::load_policy;
+use policy::lookahead::{HumanModel, Lookahead};
+use sim::{run_episode, Env, Outcome};
+
+/// Below this weight a human counts as ignored.
+const IGNORED: f32 = 0.01;
+
+fn main() -> anyhow::Result<()> {
+    let mut args: Vec<String> = std::env::args().skip(1).collect();
+    let mut episodes = 100u64;
+    if let Some(k) = args.iter().position(|a| a == "--episodes") {
+        let n = args.get(k + 1).context("--episodes needs a number")?;
+        episodes = n.parse().with_context(|| format!("--episodes: `{n}`"))?;
+        args.drain(k..k + 2);
+    }
+    if args.is_empty() {
+        bail!("usage: attention [--episodes N] MODEL.fsrlm...");
+    }
+    println!("| model | episodes | Succ. | Coll. | Timeout | humans ignored per decision | max weight | hit human's weight (mean) | hit human ignored | hits on standing |");
+    println!("|---|---|---|---|---|---|---|---|---|---|");
+    for path in &args {
+        let (model, _) =
+            load_policy(path.as_ref()).with_context(|| format!("cannot load {path}"))?;
+        let n = model.sim.humans.count;
+        let (mut outcomes, mut ignored, mut maxw, mut decisions) = ([0u32; 3], 0.0, 0.0, 0u64);
+        let (mut hit_w, mut hit_ignored, mut hit_standing) = (Vec::new(), 0u32, 0u32);
+        for seed in model.train.test_seed_start..model.train.test_seed_start + episodes {
+            let mut env = Env::new(model.sim.clone(), model.setting, seed)?;
+            let standing: Vec<bool> = env.humans().iter().map(|h| h.standing).collect();
+            let human_model: HumanModel = model.train.human_model.into();
+            let mut la = Lookahead::new(model.train.gamma, human_model, model.method.human_order())
+                .with_terminal_previews(model.train.terminal_previews);
+            let mut last: Vec<f32> = Vec::new();
+            let mut failure = None;
+            let ep = run_episode(
+                &mut env,
+                |env| match la.decide(env, &model.net) {
+                    Ok(d) => {
+                        if let Some(row) = la
+                            .attention(&model.net)
+                            .and_then(|a| a.get(d.action * n..(d.action + 1) * n))
+                        {
+                            ignored +=
+                                row.iter().filter(|&&w| w < IGNORED).count() as f64 / n as f64;
+                            maxw += row.iter().copied().fold(0.0, f32::max) as f64;
+                            decisions += 1;
+                            last = row.to_vec();
+                        }
+                        d.action
+                    }
+                    Err(e) => {
+                        failure.get_or_insert(e);
+                        0
+                    }
+                },
+                true,
+            )?;
+            if let Some(e) = failure {
+                bail!("{path}: the policy failed: {e}");
+            }
+            let k = match ep.summary.outcome {
+                Outcome::ReachGoal => 0,
+                Outcome::Collision => 1,
+                _ => 2,
+            };
+            outcomes[k] += 1;
+            if k == 1 && !last.is_empty() {
+                // The human hit: the nearest one (boundary distance) in the last frame.
+                let f = ep.frames.last().context("no frames")?;
+                let hit = (0..n)
+                    .min_by(|&a, &b| {
+                        let d = |i: usize| (f.humans[i] - f.robot.position).norm();
+                        d(a).total_cmp(&d(b))
+                    })
+                    .context("no humans")?;
+                hit_w.push(last[hit] as f64);
+                hit_ignored += u32::from(last[hit] < IGNORED);
+                hit_standing += u32::from(standing[hit]);
+            }
+        }
+        let e = episodes as f64;
+        let d = decisions.max(1) as f64;
+        let hits = hit_w.len();
+        let mean_hit = if hits == 0 {
+            "–".to_string()
+        } else {
+            format!("{:.3}", hit_w.iter().sum::<f64>() / hits as f64)
+        };
+        println!(
+            "| {path} | {episodes} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {mean_hit} | {hit_ignored}/{hits} | {hit_standing}/{hits} |",
+            outcomes[0] as f64 / e,
+            outcomes[1] as f64 / e,
+            outcomes[2] as f64 / e,
+            ignored / d,
+            maxw / d,
+        );
+    }
+    Ok(())
+}
