@@ -4,7 +4,8 @@
 # Every model trained on env1-invisible with seed 0 is evaluated with ORCA on all six settings
 # (bars.png: how a policy trained in one setting does in the others); every shipped model is
 # evaluated on the setting it was trained in (docs/results/grid/<model>.{md,json}, kept while
-# newer than the model) and drawn as the paper's Fig. 5 grid (bars-grid.png).
+# newer than the model), drawn as the paper's Fig. 5 grid (bars-grid.png) and put in one table,
+# mean ± std over seeds (docs/results/grid-compare/compare.md).
 #   docs/make-pictures.sh [FSRL_BINARY]
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -44,4 +45,6 @@ for f in "$GRID"/*.json; do
   case "$(basename "$f")" in lstm-rl-*|sarl-env*|fsrl-*) grid+=("$f") ;; esac
 done
 "$FSRL" plot bars "${grid[@]}" --title "Each method trained and tested in each setting (500 test episodes)" --out "$OUT/bars-grid"
+# The same reports as one table, mean ± std over the seeds (the README's grid table).
+"$FSRL" compare "$GRID"/*.json --out docs/results/grid-compare > /dev/null
 echo "pictures in $OUT"
