@@ -1005,24 +1005,24 @@ fn every_config_in_configs_is_valid() {
         assert!(printed.contains(line), "{line} missing in:\n{printed}");
     }
     // SPEC §5's imitation rate there; the default schedule departs from it (Experiment 5).
-    assert_eq!(imitation_learning_rate(&printed), "0.01", "{printed}");
+    assert_eq!(imitation_learning_rate(&printed), 0.01, "{printed}");
     let o = fsrl(&[
         "check-config",
         root.join("configs/fast.toml").to_str().unwrap(),
         "--print",
     ]);
     let printed = String::from_utf8_lossy(&o.stdout);
-    assert_eq!(imitation_learning_rate(&printed), "0.001", "{printed}");
+    assert_eq!(imitation_learning_rate(&printed), 0.001, "{printed}");
 }
 
-/// The value of `learning_rate` in the `[train.imitation]` table of `check-config --print`.
-fn imitation_learning_rate(printed: &str) -> &str {
-    let table = printed
-        .split("\n[")
-        .find(|t| t.starts_with("train.imitation]"))
-        .expect("a [train.imitation] table");
-    table
-        .lines()
-        .find_map(|l| l.strip_prefix("learning_rate = "))
-        .expect("learning_rate in [train.imitation]")
+/// `train.imitation.learning_rate` of a `check-config --print` output (an `ok: ...` line, then
+/// the resolved config as TOML).
+fn imitation_learning_rate(printed: &str) -> f64 {
+    let start = printed.find("\n[").expect("a TOML table after the ok line") + 1;
+    let t: toml::Table = printed[start..]
+        .parse()
+        .expect("check-config --print is TOML");
+    t["train"]["imitation"]["learning_rate"]
+        .as_float()
+        .expect("train.imitation.learning_rate is a number")
 }
