@@ -1,7 +1,9 @@
 //! How much of the crowd a SARL-network policy attends to: for each model file, greedy test
 //! episodes of its trained setting, and per decision the share of humans whose attention weight
 //! (of the chosen candidate) is below 0.01, the largest weight, and, in a collision, the weight
-//! the policy gave the human it hit at its last decision (`docs/REPRODUCTION.md`, Experiment 5).
+//! the policy gave the human it hit at its last decision (`docs/REPRODUCTION.md`, Experiment 5);
+//! for timeouts, how close the robot came to its goal and how many ended farther from it than they
+//! started (a robot that retreats from the crowd).
 //!
 //! ```sh
 //! cargo run --release --example attention -- [--episodes 100] MODEL.fsrlm...
@@ -26,14 +28,15 @@ fn main() -> anyhow::Result<()> {
     if args.is_empty() {
         bail!("usage: attention [--episodes N] MODEL.fsrlm...");
     }
-    println!("| model | episodes | Succ. | Coll. | Timeout | humans ignored per decision | max weight | hit human's weight (mean) | hit human ignored | hits on standing |");
-    println!("|---|---|---|---|---|---|---|---|---|---|");
+    println!("| model | episodes | Succ. | Coll. | Timeout | humans ignored per decision | max weight | hit human's weight (mean) | hit human ignored | hits on standing | timeouts: closest to goal (m, mean) | timeouts ending farther than start |");
+    println!("|---|---|---|---|---|---|---|---|---|---|---|---|");
     for path in &args {
         let (model, _) =
             load_policy(path.as_ref()).with_context(|| format!("cannot load {path}"))?;
         let n = model.sim.humans.count;
         let (mut outcomes, mut ignored, mut maxw, mut decisions) = ([0u32; 3], 0.0, 0.0, 0u64);
         let (mut hit_w, mut hit_ignored, mut hit_standing) = (Vec::new(), 0u32, 0u32);
+        let (mut closest, mut retreats) = (Vec::new(), 0u32);
         for seed in model.train.test_seed_start..model.train.test_seed_start + episodes {
             let mut env = Env::new(model.sim.clone(), model.setting, seed)?;
             let standing: Vec<bool> = env.humans().iter().map(|h| h.standing).collect();
@@ -87,6 +90,13 @@ fn main() -> anyhow::Result<()> {
                 hit_ignored += u32::from(last[hit] < IGNORED);
                 hit_standing += u32::from(standing[hit]);
             }
+            if k == 2 {
+                let to_goal = |f: &sim::Frame| (f.robot.goal - f.robot.position).norm();
+                let (first, last) = (ep.frames.first(), ep.frames.last());
+                let (first, last) = first.zip(last).context("no frames")?;
+                closest.push(ep.frames.iter().map(to_goal).fold(f64::INFINITY, f64::min));
+                retreats += u32::from(to_goal(last) > to_goal(first));
+            }
         }
         let e = episodes as f64;
         let d = decisions.max(1) as f64;
@@ -96,8 +106,14 @@ fn main() -> anyhow::Result<()> {
         } else {
             format!("{:.3}", hit_w.iter().sum::<f64>() / hits as f64)
         };
+        let timeouts = closest.len();
+        let mean_closest = if timeouts == 0 {
+            "–".to_string()
+        } else {
+            format!("{:.2}", closest.iter().sum::<f64>() / timeouts as f64)
+        };
         println!(
-            "| {path} | {episodes} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {mean_hit} | {hit_ignored}/{hits} | {hit_standing}/{hits} |",
+            "| {path} | {episodes} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {mean_hit} | {hit_ignored}/{hits} | {hit_standing}/{hits} | {mean_closest} | {retreats}/{timeouts} |",
             outcomes[0] as f64 / e,
             outcomes[1] as f64 / e,
             outcomes[2] as f64 / e,
