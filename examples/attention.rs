@@ -91,27 +91,20 @@ fn main() -> anyhow::Result<()> {
                 hit_standing += u32::from(standing[hit]);
             }
             if k == 2 {
-                let to_goal = |f: &sim::Frame| (f.robot.goal - f.robot.position).norm();
-                let (first, last) = (ep.frames.first(), ep.frames.last());
-                let (first, last) = first.zip(last).context("no frames")?;
+                let to_goal = |f: &sim::Frame| f.robot.distance_to_goal();
+                let (start, end) = ep
+                    .frames
+                    .first()
+                    .zip(ep.frames.last())
+                    .context("no frames")?;
                 closest.push(ep.frames.iter().map(to_goal).fold(f64::INFINITY, f64::min));
-                retreats += u32::from(to_goal(last) > to_goal(first));
+                retreats += u32::from(to_goal(end) > to_goal(start));
             }
         }
         let e = episodes as f64;
         let d = decisions.max(1) as f64;
-        let hits = hit_w.len();
-        let mean_hit = if hits == 0 {
-            "–".to_string()
-        } else {
-            format!("{:.3}", hit_w.iter().sum::<f64>() / hits as f64)
-        };
-        let timeouts = closest.len();
-        let mean_closest = if timeouts == 0 {
-            "–".to_string()
-        } else {
-            format!("{:.2}", closest.iter().sum::<f64>() / timeouts as f64)
-        };
+        let (hits, timeouts) = (hit_w.len(), closest.len());
+        let (mean_hit, mean_closest) = (mean_cell(&hit_w, 3), mean_cell(&closest, 2));
         println!(
             "| {path} | {episodes} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {mean_hit} | {hit_ignored}/{hits} | {hit_standing}/{hits} | {mean_closest} | {retreats}/{timeouts} |",
             outcomes[0] as f64 / e,
@@ -122,4 +115,15 @@ fn main() -> anyhow::Result<()> {
         );
     }
     Ok(())
+}
+
+/// A table cell: the mean of `values` with `decimals` digits, or a dash when there are none.
+fn mean_cell(values: &[f64], decimals: usize) -> String {
+    if values.is_empty() {
+        return "–".to_string();
+    }
+    format!(
+        "{:.decimals$}",
+        values.iter().sum::<f64>() / values.len() as f64
+    )
 }
