@@ -29,7 +29,7 @@ curves=("${curves[@]%.log}")
 # The paper schedule against the short one (Experiment 7): the runs' imitation and validation
 # lines are committed in docs/results/paper-schedule/<group>-s<seed>/metrics.jsonl.
 "$FSRL" plot curves docs/results/paper-schedule/*-s[0-9]/ \
-  --title "FSRL env1-invisible: the paper schedule (seed 0) and the short schedule (seeds 0-2)" --out "$OUT/curves-schedules-tmp"
+  --title "FSRL env1-invisible: three schedules (Experiments 7 and 8)" --out "$OUT/curves-schedules-tmp"
 for f in "$OUT"/curves-schedules-tmp-validation-*; do mv "$f" "${f/curves-schedules-tmp-/curves-schedules-}"; done
 rm -f "$OUT"/curves-schedules-tmp.svg "$OUT"/curves-schedules-tmp.png
 "$FSRL" plot episode models/fsrl-env1-invisible-s0.fsrlm --seed 1000 --out "$OUT/episode" --gif-size 300 --stride 2
