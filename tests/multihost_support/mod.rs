@@ -872,9 +872,17 @@ fn own_metrics_sender(cfg: &TransportConfig) -> SenderId {
 /// plus queryable, like the learner). Also publishes a marked metrics message on the metrics
 /// key its credentials may publish (`actor-<id>`'s), from a second session of the same user
 /// with that sender (receivers refuse a sender other than the key's): seeing it proves the
-/// credentials were accepted.
+/// credentials were accepted. Publishes `ARG_ENV` rounds (default 30), one every 100 ms: the
+/// learner's weights overwrite the rogue's in latest-value subscribers, so a control that must
+/// be seen publishes for longer.
 fn rogue() -> Result<(), String> {
     let (cfg, method) = helper_transport(Role::Learner, 0)?;
+    let rounds: u32 = match std::env::var(ARG_ENV) {
+        Ok(a) => a
+            .parse()
+            .map_err(|_| format!("ARG must be a count of rounds, not {a:?}"))?,
+        Err(_) => 30,
+    };
     let mut marker_cfg = cfg.clone();
     marker_cfg.sender = own_metrics_sender(&cfg);
     let mut last = String::new();
@@ -903,7 +911,7 @@ fn rogue() -> Result<(), String> {
         .map_err(e)?;
     let mut m = Metrics::default();
     m.values.insert("rogue_marker".into(), 1.0);
-    for _ in 0..30 {
+    for _ in 0..rounds {
         weights.publish(ROGUE_VERSION, &w).map_err(e)?;
         marker.publish(0, &m).map_err(e)?;
         std::thread::sleep(Duration::from_millis(100));
