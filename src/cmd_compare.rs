@@ -14,8 +14,8 @@ use sim::Setting;
 
 use crate::config::FileConfig;
 use crate::report::{
-    csv_field, paper_layout_row, paper_row, EvalReport, Metric, Report, SettingReport,
-    SubjectReport, PAPER_COLUMNS,
+    csv_field, mean_ci95, paper_layout_row, paper_row, welch, EvalReport, Metric, Report,
+    SettingReport, SubjectReport, Welch, PAPER_COLUMNS,
 };
 
 #[derive(Debug, clap::Args)]
@@ -27,6 +27,11 @@ pub struct CompareArgs {
     /// Also write compare.md, compare.csv and compare.json into this directory.
     #[arg(long)]
     pub out: Option<PathBuf>,
+    /// A second arm (same kinds of sources) to test the first against: per setting and metric,
+    /// each run's value, mean ± std with a 95 % t interval over runs, and Welch's t-test of the
+    /// difference of the means. Each arm must hold a single method.
+    #[arg(long, num_args = 1..)]
+    pub vs: Vec<PathBuf>,
 }
 
 /// One policy's results, read from a source.
@@ -329,17 +334,8 @@ pub fn markdown(groups: &[Group]) -> String {
 
 fn csv(groups: &[Group]) -> String {
     let mut s = String::from("method,setting,runs");
-    for m in [
-        "success",
-        "collision",
-        "timeout",
-        "nav_time_s",
-        "disc",
-        "path_length_m",
-        "mean_abs_rotation_rad",
-        "mean_return",
-    ] {
-        let _ = write!(s, ",{m}_mean,{m}_std");
+    for m in Metric::ALL {
+        let _ = write!(s, ",{}_mean,{}_std", m.key(), m.key());
     }
     s += ",paper_nav_time_s,paper_disc\n";
     let f = |v: Option<f64>| v.map_or(String::new(), |x| format!("{x}"));
@@ -370,19 +366,188 @@ fn csv(groups: &[Group]) -> String {
     s
 }
 
+/// The metrics an arm test covers (the paper's five and the timeout rate).
+const TESTED: [Metric; 5] = [
+    Metric::Success,
+    Metric::Collision,
+    Metric::Timeout,
+    Metric::NavTime,
+    Metric::Disc,
+];
+
+/// The sources of one arm of `--vs`, as a single method's group.
+fn arm(paths: &[PathBuf], name: &str) -> anyhow::Result<Group> {
+    let mut groups = group(load_sources(paths)?);
+    match groups.len() {
+        1 => Ok(groups.remove(0)),
+        0 => bail!("arm {name}: no policies in its sources"),
+        _ => bail!(
+            "arm {name} holds several methods ({}); an arm of --vs is one method's runs",
+            groups
+                .iter()
+                .map(|g| g.method.as_str())
+                .collect::<Vec<_>>()
+                .join(", ")
+        ),
+    }
+}
+
+#[derive(Serialize)]
+struct ArmCell {
+    values: Vec<f64>,
+    mean: Option<f64>,
+    std: Option<f64>,
+    ci95: Option<[f64; 2]>,
+}
+
+impl ArmCell {
+    fn of(values: Vec<f64>) -> Self {
+        let st = Stat::of(&values);
+        ArmCell {
+            mean: st.map(|s| s.mean),
+            std: st.and_then(|s| s.std),
+            ci95: mean_ci95(&values),
+            values,
+        }
+    }
+
+    fn text(&self, digits: usize) -> String {
+        let each: Vec<String> = self
+            .values
+            .iter()
+            .map(|v| format!("{v:.digits$}"))
+            .collect();
+        let mut s = each.join(" / ");
+        if let (Some(m), Some(sd)) = (self.mean, self.std) {
+            let _ = write!(s, ": {m:.digits$} ± {sd:.digits$}");
+            if let Some([lo, hi]) = self.ci95 {
+                let _ = write!(s, " [{lo:.digits$}, {hi:.digits$}]");
+            }
+        }
+        s
+    }
+}
+
+#[derive(Serialize)]
+struct ArmTest {
+    setting: String,
+    metric: &'static str,
+    a: ArmCell,
+    b: ArmCell,
+    /// Null below two runs in either arm or without spread in both.
+    welch: Option<Welch>,
+}
+
+/// Every setting both arms have, every tested metric.
+fn arm_tests(a: &Group, b: &Group) -> Vec<ArmTest> {
+    let mut out = Vec::new();
+    for &setting in &Setting::ALL {
+        if a.values(Metric::Success, setting).is_empty()
+            || b.values(Metric::Success, setting).is_empty()
+        {
+            continue;
+        }
+        for metric in TESTED {
+            let (va, vb) = (a.values(metric, setting), b.values(metric, setting));
+            out.push(ArmTest {
+                setting: setting.name().into(),
+                metric: metric.key(),
+                welch: welch(&va, &vb),
+                a: ArmCell::of(va),
+                b: ArmCell::of(vb),
+            });
+        }
+    }
+    out
+}
+
+fn pooled(g: &Group, setting: &str) -> (u32, u32) {
+    g.members
+        .iter()
+        .filter_map(|m| m.settings.iter().find(|r| r.setting == setting))
+        .fold((0, 0), |(k, n), r| (k + r.successes, n + r.episodes))
+}
+
+/// The arms' sources as given on the command line: the reports' own labels name the method,
+/// setting and seed, which two arms of one method share.
+fn arms_markdown(arms: [(&Group, &[PathBuf]); 2], tests: &[ArmTest]) -> String {
+    let mut s = String::from("# Arm A against arm B\n\n");
+    for ((g, paths), name) in arms.iter().zip(["A", "B"]) {
+        let sources: Vec<String> = paths.iter().map(|p| p.display().to_string()).collect();
+        let _ = writeln!(
+            s,
+            "- {name}: {}, {} runs ({})",
+            g.method,
+            g.members.len(),
+            sources.join(", ")
+        );
+    }
+    s.push('\n');
+    let [(a, _), (b, _)] = arms;
+    s += "Per run, then mean ± std over runs [95 % t interval]; Welch's t-test of A − B (two-sided p; none below two runs per arm).
+
+";
+    s += "| setting | metric | A | B | A − B | t | df | p |
+|---|---|---|---|---|---|---|---|
+";
+    for t in tests {
+        let metric = TESTED
+            .into_iter()
+            .find(|m| m.key() == t.metric)
+            .expect("tested metric");
+        let d = metric.digits();
+        let (mut ta, mut tb) = (t.a.text(d), t.b.text(d));
+        if metric == Metric::Success {
+            let (ka, na) = pooled(a, &t.setting);
+            let (kb, nb) = pooled(b, &t.setting);
+            let _ = write!(ta, " (pooled {ka}/{na})");
+            let _ = write!(tb, " (pooled {kb}/{nb})");
+        }
+        let tail = match t.welch {
+            Some(w) => format!(
+                "{:+.d$} | {:.2} | {:.1} | {:.3}",
+                w.difference, w.t, w.df, w.p
+            ),
+            None => match (t.a.mean, t.b.mean) {
+                (Some(x), Some(y)) => format!("{:+.d$} | – | – | –", x - y),
+                _ => "– | – | – | –".into(),
+            },
+        };
+        let _ = writeln!(s, "| {} | {} | {ta} | {tb} | {tail} |", t.setting, t.metric);
+    }
+    s
+}
+
 pub fn run(args: CompareArgs) -> anyhow::Result<()> {
+    let arms = if args.vs.is_empty() {
+        None
+    } else {
+        let (a, b) = (arm(&args.runs, "A")?, arm(&args.vs, "B")?);
+        let tests = arm_tests(&a, &b);
+        if tests.is_empty() {
+            bail!("the two arms have no setting in common");
+        }
+        Some((
+            arms_markdown([(&a, &args.runs), (&b, &args.vs)], &tests),
+            tests,
+        ))
+    };
     let groups = group(load_sources(&args.runs)?);
-    let md = markdown(&groups);
+    let md = match &arms {
+        Some((arms_md, _)) => format!("{arms_md}\n{}", markdown(&groups)),
+        None => markdown(&groups),
+    };
     println!("{md}");
     if let Some(dir) = &args.out {
         std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+        let mut json = serde_json::to_value(to_json(&groups))?;
+        if let Some((_, tests)) = &arms {
+            json["arms"] = serde_json::to_value(tests)?;
+        }
         for (name, text) in [
             ("compare.md", md.clone()),
             ("compare.csv", csv(&groups)),
-            (
-                "compare.json",
-                serde_json::to_string_pretty(&to_json(&groups))?,
-            ),
+            ("compare.json", serde_json::to_string_pretty(&json)?),
         ] {
             let path = dir.join(name);
             std::fs::write(&path, text)

@@ -825,6 +825,7 @@ pub fn run(args: ReproduceArgs) -> anyhow::Result<()> {
     cmd_compare::run(CompareArgs {
         runs: sources,
         out: Some(report_dir),
+        vs: Vec::new(),
     })
 }
 

@@ -12,6 +12,7 @@ use std::path::Path;
 use anyhow::Context;
 use serde::{Deserialize, Serialize};
 use sim::{Aggregate, Setting};
+use statrs::distribution::{ContinuousCDF, StudentsT};
 
 /// z for a two-sided 95% interval.
 const Z95: f64 = 1.959_963_984_540_054;
@@ -41,23 +42,48 @@ pub fn wilson(k: u32, n: u32) -> [f64; 2] {
     [lo, hi]
 }
 
-/// The 0.975 quantile of Student's t with `df` degrees of freedom.
+/// The 0.975 quantile of Student's t with `df` degrees of freedom (infinite at 0).
 pub fn t975(df: u32) -> f64 {
-    const TABLE: [f64; 30] = [
-        12.706, 4.303, 3.182, 2.776, 2.571, 2.447, 2.365, 2.306, 2.262, 2.228, 2.201, 2.179, 2.160,
-        2.145, 2.131, 2.120, 2.110, 2.101, 2.093, 2.086, 2.080, 2.074, 2.069, 2.064, 2.060, 2.056,
-        2.052, 2.048, 2.045, 2.042,
-    ];
-    match df {
-        0 => f64::INFINITY,
-        1..=30 => TABLE[df as usize - 1],
-        _ => {
-            // Cornish–Fisher expansion around the normal quantile (error < 1e-4 for df > 30).
-            let (z, v) = (Z95, df as f64);
-            z + (z.powi(3) + z) / (4.0 * v)
-                + (5.0 * z.powi(5) + 16.0 * z.powi(3) + 3.0 * z) / (96.0 * v * v)
-        }
+    students_t(f64::from(df)).map_or(f64::INFINITY, |t| t.inverse_cdf(0.975))
+}
+
+/// Student's t with `df` degrees of freedom (`None` unless `df` > 0 and finite).
+fn students_t(df: f64) -> Option<StudentsT> {
+    StudentsT::new(0.0, 1.0, df).ok().filter(|_| df.is_finite())
+}
+
+/// Welch's unequal-variance t-test of the means of two samples.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct Welch {
+    /// mean(a) − mean(b).
+    pub difference: f64,
+    pub t: f64,
+    /// Welch–Satterthwaite degrees of freedom.
+    pub df: f64,
+    /// Two-sided p-value.
+    pub p: f64,
+}
+
+/// Welch's t-test of mean(a) = mean(b); `None` below two values in either sample or when
+/// neither varies (then no spread estimates the noise).
+pub fn welch(a: &[f64], b: &[f64]) -> Option<Welch> {
+    let (ma, sa) = mean_std(a)?;
+    let (mb, sb) = mean_std(b)?;
+    let (va, vb) = (sa?.powi(2) / a.len() as f64, sb?.powi(2) / b.len() as f64);
+    let se2 = va + vb;
+    if se2.is_nan() || se2 <= 0.0 {
+        return None;
     }
+    let difference = ma - mb;
+    let t = difference / se2.sqrt();
+    let df = se2.powi(2) / (va.powi(2) / (a.len() - 1) as f64 + vb.powi(2) / (b.len() - 1) as f64);
+    let p = 2.0 * students_t(df)?.sf(t.abs());
+    Some(Welch {
+        difference,
+        t,
+        df,
+        p: p.min(1.0),
+    })
 }
 
 /// Mean, sample standard deviation (`None` below two values) of `xs`.
@@ -295,6 +321,20 @@ impl Metric {
         Metric::Smoothness,
         Metric::Return,
     ];
+
+    /// The field name in reports (JSON keys, CSV columns).
+    pub fn key(self) -> &'static str {
+        match self {
+            Metric::Success => "success",
+            Metric::Collision => "collision",
+            Metric::Timeout => "timeout",
+            Metric::NavTime => "nav_time_s",
+            Metric::Disc => "disc",
+            Metric::PathLength => "path_length_m",
+            Metric::Smoothness => "mean_abs_rotation_rad",
+            Metric::Return => "mean_return",
+        }
+    }
 
     pub fn title(self) -> &'static str {
         match self {
@@ -605,13 +645,36 @@ mod tests {
 
     #[test]
     fn t_interval() {
-        assert!((t975(10) - 2.228).abs() < 1e-9);
+        assert!((t975(10) - 2.228).abs() < 1e-3);
         assert!((t975(60) - 2.000).abs() < 1e-3);
         assert!((t975(1000) - 1.962).abs() < 1e-3);
         let ci = mean_ci95(&[10.0, 12.0]).unwrap();
-        // mean 11, std √2, half = 12.706·√2/√2.
-        assert!((ci[0] - (11.0 - 12.706)).abs() < 1e-9);
+        // mean 11, std √2, half = t(0.975, 1)·√2/√2 (SciPy: t.ppf(0.975, 1) = 12.706205).
+        assert!((ci[0] - (11.0 - 12.706205)).abs() < 1e-5, "{ci:?}");
         assert!(mean_ci95(&[3.0]).is_none());
+        assert_eq!(t975(0), f64::INFINITY);
+        // SciPy: t.ppf(0.975, 2) = 4.302653.
+        assert!((t975(2) - 4.302653).abs() < 1e-5);
+    }
+
+    #[test]
+    fn welch_matches_known_values() {
+        // SciPy 1.x: ttest_ind([0.978, 0.982, 0.984], [0.900, 0.856, 0.870], equal_var=False)
+        // gives t = 8.092887, df = 2.073853, p = 0.0134108.
+        let w = welch(&[0.978, 0.982, 0.984], &[0.900, 0.856, 0.870]).unwrap();
+        assert!((w.difference - 0.106).abs() < 1e-9, "{w:?}");
+        assert!((w.t - 8.092887).abs() < 1e-5, "{w:?}");
+        assert!((w.df - 2.073853).abs() < 1e-5, "{w:?}");
+        assert!((w.p - 0.0134108).abs() < 1e-6, "{w:?}");
+        // Symmetric in the sign of the difference.
+        let v = welch(&[0.900, 0.856, 0.870], &[0.978, 0.982, 0.984]).unwrap();
+        assert!((v.p - w.p).abs() < 1e-12 && (v.t + w.t).abs() < 1e-12);
+        // Equal samples: no evidence of a difference.
+        let same = welch(&[1.0, 2.0, 3.0], &[1.0, 2.0, 3.0]).unwrap();
+        assert!(same.t == 0.0 && (same.p - 1.0).abs() < 1e-12, "{same:?}");
+        // One value, or no spread at all: no test.
+        assert!(welch(&[1.0], &[1.0, 2.0]).is_none());
+        assert!(welch(&[1.0, 1.0], &[2.0, 2.0]).is_none());
     }
 
     #[test]

@@ -460,3 +460,64 @@ fn bad_inputs_are_clear_errors() {
     let e = fails(&["plot", "episode", "--out", s(&dir.join("e"))]);
     assert!(e.contains("or pass --orca"), "{e}");
 }
+
+/// `fsrl compare A... --vs B...` on Experiment 9's committed reports: per-run values, the
+/// pooled counts and Welch's test agree with SciPy on the same numbers; an arm of two methods
+/// is refused.
+#[test]
+fn compare_tests_one_arm_against_another() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("docs/results/paper-schedule");
+    let arm = |m: &str| -> Vec<String> {
+        (0..3)
+            .map(|seed| {
+                root.join(format!("{m}-4000x25-env1-invisible-s{seed}.json"))
+                    .display()
+                    .to_string()
+            })
+            .collect()
+    };
+    let (fsrl_arm, sarl_arm) = (arm("fsrl"), arm("sarl"));
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("vs");
+    let mut args: Vec<&str> = vec!["compare"];
+    args.extend(fsrl_arm.iter().map(String::as_str));
+    args.push("--vs");
+    args.extend(sarl_arm.iter().map(String::as_str));
+    args.extend(["--out", s(&out)]);
+    let table = ok(&args);
+    assert!(
+        table.contains("- A: fsrl, 3 runs (") && table.contains(&fsrl_arm[2]),
+        "{table}"
+    );
+    assert!(table.contains("- B: sarl, 3 runs ("), "{table}");
+    let succ = table
+        .lines()
+        .find(|l| l.starts_with("| env1-invisible | success |"))
+        .unwrap_or_else(|| panic!("no success row:\n{table}"));
+    assert!(
+        succ.contains("0.966 / 0.954 / 0.978: 0.966 ± 0.012") && succ.contains("pooled 1449/1500"),
+        "{succ}"
+    );
+    assert!(succ.contains("pooled 1444/1500"), "{succ}");
+    // SciPy: ttest_ind([0.966, 0.954, 0.978], [0.958, 0.954, 0.976], equal_var=False) gives
+    // t = 0.3442, df = 3.998, p = 0.748.
+    assert!(succ.ends_with("| +0.003 | 0.34 | 4.0 | 0.748 |"), "{succ}");
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("compare.json")).unwrap()).unwrap();
+    let arms = json["arms"].as_array().unwrap();
+    assert_eq!(arms.len(), 5, "one setting × five metrics");
+    let disc = arms.iter().find(|t| t["metric"] == "disc").unwrap();
+    // SciPy on the reports' Disc. values: t = -0.16553, p = 0.87656.
+    let p = disc["welch"]["p"].as_f64().unwrap();
+    assert!((p - 0.87656).abs() < 1e-4, "{disc}");
+    assert_eq!(disc["a"]["values"].as_array().unwrap().len(), 3);
+
+    // An arm mixing two methods says so.
+    let mut mixed: Vec<&str> = vec!["compare", &fsrl_arm[0], &sarl_arm[0], "--vs"];
+    mixed.extend(sarl_arm.iter().map(String::as_str));
+    let e = fails(&mixed);
+    assert!(
+        e.contains("arm A holds several methods (sarl, fsrl)"),
+        "{e}"
+    );
+}
