@@ -15,7 +15,7 @@ use evaluator::{evaluate, Subject};
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use learner::model::{self, ArtifactKind, Model};
 use policy::lookahead::HumanModel;
-use policy::method::Method;
+use policy::method::{Method, Select};
 use sim::{Aggregate, Setting, SimConfig};
 
 use crate::config::FileConfig;
@@ -24,10 +24,13 @@ use crate::report::{EvalReport, Samples, SettingReport, SubjectReport, EVAL_KIND
 #[derive(Debug, clap::Args)]
 pub struct EvalArgs {
     /// Model files (.fsrlm, from `fsrl export-model`), checkpoints (.ckpt files) or run
-    /// directories of `fsrl train` (their checkpoints/latest.ckpt, or the best validation snapshot
-    /// with `train.select = "best-validation"`); a file's kind is read from
-    /// its first bytes.
+    /// directories of `fsrl train` (their checkpoints/latest.ckpt, or the validation snapshot
+    /// their `train.select` chooses); a file's kind is read from its first bytes.
     pub inputs: Vec<PathBuf>,
+    /// Which weights of a run directory: last, best-validation or low-disc [default: the run's
+    /// train.select].
+    #[arg(long, value_parser = parse_select)]
+    pub select: Option<Select>,
     /// Also evaluate the ORCA baseline.
     #[arg(long)]
     pub orca: bool,
@@ -62,10 +65,18 @@ pub struct Input {
     pub run_dir: Option<PathBuf>,
 }
 
-/// A run directory means its `checkpoints/latest.ckpt` (with `train.select =
-/// "best-validation"`, its best validation snapshot); anything else is a model file or a
+/// `--select`: a `train.select` value.
+pub fn parse_select(s: &str) -> Result<Select, String> {
+    [Select::Last, Select::BestValidation, Select::LowDisc]
+        .into_iter()
+        .find(|r| r.name() == s)
+        .ok_or_else(|| format!("{s:?}: not one of last, best-validation, low-disc"))
+}
+
+/// A run directory means its `checkpoints/latest.ckpt` or the validation snapshot its
+/// `train.select` (or `select`, when given) chooses; anything else is a model file or a
 /// checkpoint.
-pub fn resolve_input(path: &Path) -> anyhow::Result<Input> {
+pub fn resolve_input(path: &Path, select: Option<Select>) -> anyhow::Result<Input> {
     if path.is_dir() {
         if !path.join("checkpoints").join("latest.ckpt").exists() {
             bail!(
@@ -74,7 +85,7 @@ pub fn resolve_input(path: &Path) -> anyhow::Result<Input> {
             );
         }
         Ok(Input {
-            checkpoint: crate::select::run_policy(path)?,
+            checkpoint: crate::select::run_policy(path, select)?,
             run_dir: Some(path.to_path_buf()),
         })
     } else if path.exists() {
@@ -234,7 +245,7 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
     let inputs = args
         .inputs
         .iter()
-        .map(|p| resolve_input(p))
+        .map(|p| resolve_input(p, args.select))
         .collect::<anyhow::Result<Vec<_>>>()?;
     let threads = args
         .threads

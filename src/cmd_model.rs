@@ -15,10 +15,14 @@ use crate::cmd_eval::resolve_input;
 
 #[derive(Debug, clap::Args)]
 pub struct ExportArgs {
-    /// A run directory of `fsrl train` (its checkpoints/latest.ckpt, or its best validation
-    /// snapshot with `train.select = "best-validation"`), a checkpoint, or a model
-    /// file (its check is recorded again).
+    /// A run directory of `fsrl train` (its checkpoints/latest.ckpt, or the validation
+    /// snapshot its `train.select` chooses), a checkpoint, or a model file (its check is
+    /// recorded again).
     pub input: PathBuf,
+    /// Which weights of a run directory: last, best-validation or low-disc [default: the run's
+    /// train.select].
+    #[arg(long, value_parser = crate::cmd_eval::parse_select)]
+    pub select: Option<policy::method::Select>,
     /// The model file to write (conventionally models/<method>-<setting>-s<seed>.fsrlm).
     #[arg(long)]
     pub out: PathBuf,
@@ -43,7 +47,7 @@ pub fn run(args: ExportArgs) -> anyhow::Result<()> {
             args.out.display()
         );
     }
-    let input = resolve_input(&args.input)?;
+    let input = resolve_input(&args.input, args.select)?;
     let path = &input.checkpoint;
     let (mut model, _) =
         load_policy(path).with_context(|| format!("cannot load {}", path.display()))?;

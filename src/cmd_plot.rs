@@ -378,7 +378,7 @@ fn episode(a: EpisodeArgs) -> anyhow::Result<Vec<PathBuf>> {
     }
     let loaded = match &a.input {
         Some(p) => {
-            let input = resolve_input(p)?;
+            let input = resolve_input(p, None)?;
             let label = label_of(&input);
             Some((load_policy(&input.checkpoint)?.0, label))
         }

@@ -326,7 +326,7 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
     };
     let validate = |core: &LearnerCore, metrics: &mut std::fs::File| -> anyhow::Result<()> {
         let line = validation_line(core, &spec, wall0 + start.elapsed())?;
-        if train.select == Select::BestValidation {
+        if train.select != Select::Last {
             // The snapshot before its line: a line always has its weights on disk.
             let path = select::snapshot_path(&out, core.counters().rl_episodes);
             let dir = select::snapshot_dir(&out);
@@ -420,8 +420,8 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
     );
     let selected = match train.select {
         Select::Last => None,
-        Select::BestValidation => {
-            let path = select::run_policy(&out)?;
+        Select::BestValidation | Select::LowDisc => {
+            let path = select::run_policy(&out, None)?;
             Some(Model::load(&path).with_context(|| format!("cannot load {}", path.display()))?)
         }
     };

@@ -1,22 +1,26 @@
-//! `train.select`: which weights of a run are its trained policy. With `best-validation`,
-//! `fsrl train --single-process` keeps every validation's weights as a model file
+//! `train.select`: which weights of a run are its trained policy. With `best-validation` or
+//! `low-disc`, `fsrl train --single-process` keeps every validation's weights as a model file
 //! (`checkpoints/validation/ep-<RL episodes>.fsrlm`, written before its `metrics.jsonl` line),
 //! and the run's policy (final evaluation, `fsrl export-model RUN`, `fsrl eval RUN`) is the
-//! snapshot whose validation scored best. Only validation seeds take part in the choice.
+//! snapshot the rule chooses: the best validation success, or the lowest validation Disc. among
+//! the good validations after the ε decay. Only validation seeds take part in the choice.
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context};
-use policy::method::Select;
+use policy::method::{Select, LOW_DISC_MIN_SUCCESS};
 
 use crate::config::FileConfig;
 
 /// Why a distributed run cannot take this training config, if it cannot: there the evaluator
 /// process validates and keeps no weights, so only single-process training selects.
 pub fn distributed_problem(train: &policy::method::TrainConfig) -> Option<String> {
-    (train.select == Select::BestValidation).then(|| {
-        "train.select = \"best-validation\" needs single-process training (`fsrl train --single-process`, `fsrl reproduce`): in a distributed run the evaluator validates and keeps no weights".to_string()
+    (train.select != Select::Last).then(|| {
+        format!(
+            "train.select = \"{}\" needs single-process training (`fsrl train --single-process`, `fsrl reproduce`): in a distributed run the evaluator validates and keeps no weights",
+            train.select.name()
+        )
     })
 }
 
@@ -36,6 +40,8 @@ pub struct Validation {
     pub rl_episodes: u64,
     pub success: f64,
     pub collision: f64,
+    /// Disc. on the validation episodes (`discomfort`); absent in old logs.
+    pub disc: Option<f64>,
 }
 
 /// The validations of a metrics log, one per RL episode count: a resumed run validates the
@@ -61,6 +67,7 @@ pub fn validations(metrics_jsonl: &str) -> Vec<Validation> {
                 rl_episodes: ep,
                 success,
                 collision,
+                disc: num("discomfort"),
             },
         );
     }
@@ -75,46 +82,80 @@ pub fn best(candidates: impl IntoIterator<Item = Validation>) -> Option<Validati
     })
 }
 
-/// The best validation of a run that has its snapshot on disk, with the snapshot's path.
-pub fn best_snapshot(run_dir: &Path) -> anyhow::Result<Option<(Validation, PathBuf)>> {
+/// [`Select::LowDisc`]: among the validations after `from_episode` RL episodes with success at
+/// least [`LOW_DISC_MIN_SUCCESS`], the lowest Disc. (ties: the later); without one, [`best`].
+pub fn low_disc(
+    candidates: impl IntoIterator<Item = Validation>,
+    from_episode: u64,
+) -> Option<Validation> {
+    let all: Vec<Validation> = candidates.into_iter().collect();
+    let gentlest = all
+        .iter()
+        .filter(|v| v.rl_episodes >= from_episode && v.success >= LOW_DISC_MIN_SUCCESS)
+        .filter_map(|v| v.disc.map(|d| (d, v)))
+        .fold(None::<(f64, &Validation)>, |acc, (d, v)| match acc {
+            Some((bd, _)) if d > bd => acc,
+            _ => Some((d, v)),
+        });
+    match gentlest {
+        Some((_, v)) => Some(v.clone()),
+        None => best(all),
+    }
+}
+
+/// The validation `rule` chooses among a run's validations that have their snapshot on disk,
+/// with the snapshot's path; `None` for [`Select::Last`] or without a snapshot.
+pub fn chosen_snapshot(
+    run_dir: &Path,
+    rule: Select,
+    decay_end_episode: u64,
+) -> anyhow::Result<Option<(Validation, PathBuf)>> {
     let path = run_dir.join("metrics.jsonl");
     let text = std::fs::read_to_string(&path)
         .with_context(|| format!("cannot read {}", path.display()))?;
-    let found = best(
-        validations(&text)
-            .into_iter()
-            .filter(|v| snapshot_path(run_dir, v.rl_episodes).exists()),
-    );
+    let on_disk = validations(&text)
+        .into_iter()
+        .filter(|v| snapshot_path(run_dir, v.rl_episodes).exists());
+    let found = match rule {
+        Select::Last => None,
+        Select::BestValidation => best(on_disk),
+        Select::LowDisc => low_disc(on_disk, decay_end_episode),
+    };
     Ok(found.map(|v| {
         let p = snapshot_path(run_dir, v.rl_episodes);
         (v, p)
     }))
 }
 
-/// The policy file of a run directory: its `checkpoints/latest.ckpt`, or with
-/// `train.select = "best-validation"` in its `config.toml` the best validation snapshot.
-pub fn run_policy(run_dir: &Path) -> anyhow::Result<PathBuf> {
+/// The policy file of a run directory: its `checkpoints/latest.ckpt`, or the validation
+/// snapshot its `train.select` chooses (`rule` overrides the run's own).
+pub fn run_policy(run_dir: &Path, rule: Option<Select>) -> anyhow::Result<PathBuf> {
     let latest = run_dir.join("checkpoints").join("latest.ckpt");
-    let select = FileConfig::load(Some(&run_dir.join("config.toml")))
-        .map(|c| c.train.select)
+    let config = FileConfig::load(Some(&run_dir.join("config.toml"))).ok();
+    let rule = rule
+        .or_else(|| config.as_ref().map(|c| c.train.select))
         .unwrap_or_default();
-    if select == Select::Last {
+    if rule == Select::Last {
         return Ok(latest);
     }
-    match best_snapshot(run_dir)? {
+    let decay_end = config.map_or(0, |c| c.train.rl.epsilon_decay_episodes);
+    match chosen_snapshot(run_dir, rule, decay_end)? {
         Some((v, path)) => {
             eprintln!(
-                "{}: train.select = \"best-validation\": the snapshot after {} RL episodes (validation success {:.2}, collision {:.2})",
+                "{}: train.select = \"{}\": the snapshot after {} RL episodes (validation success {:.2}, collision {:.2}, Disc. {})",
                 run_dir.display(),
+                rule.name(),
                 v.rl_episodes,
                 v.success,
-                v.collision
+                v.collision,
+                v.disc.map_or("–".into(), |d| format!("{d:.3}"))
             );
             Ok(path)
         }
         None => bail!(
-            "{}: train.select = \"best-validation\" but no validation snapshot in {} matches a validation line of metrics.jsonl",
+            "{}: train.select = \"{}\" but no validation snapshot in {} matches a validation line of metrics.jsonl",
             run_dir.display(),
+            rule.name(),
             snapshot_dir(run_dir).display()
         ),
     }
@@ -154,6 +195,7 @@ mod tests {
             rl_episodes: ep,
             success: s,
             collision: c,
+            disc: None,
         };
         let got = best([
             v(100, 0.6, 0.2),
@@ -178,7 +220,7 @@ mod tests {
         // Without the switch: the last weights.
         std::fs::write(run.join("config.toml"), "").unwrap();
         assert_eq!(
-            run_policy(run).unwrap(),
+            run_policy(run, None).unwrap(),
             run.join("checkpoints").join("latest.ckpt")
         );
         std::fs::write(
@@ -186,14 +228,93 @@ mod tests {
             "[train]\nselect = \"best-validation\"\n",
         )
         .unwrap();
-        let err = run_policy(run).unwrap_err().to_string();
+        let err = run_policy(run, None).unwrap_err().to_string();
         assert!(err.contains("no validation snapshot"), "{err}");
         // The best validation's snapshot is missing (never written): the best one on disk.
         for ep in [0, 200] {
             std::fs::write(snapshot_path(run, ep), b"x").unwrap();
         }
-        assert_eq!(run_policy(run).unwrap(), snapshot_path(run, 200));
+        assert_eq!(run_policy(run, None).unwrap(), snapshot_path(run, 200));
         std::fs::write(snapshot_path(run, 100), b"x").unwrap();
-        assert_eq!(run_policy(run).unwrap(), snapshot_path(run, 100));
+        assert_eq!(run_policy(run, None).unwrap(), snapshot_path(run, 100));
+        // A rule given on the command line overrides the run's own.
+        assert_eq!(
+            run_policy(run, Some(Select::Last)).unwrap(),
+            run.join("checkpoints").join("latest.ckpt")
+        );
+    }
+
+    #[test]
+    fn low_disc_is_the_gentlest_good_validation_after_the_decay() {
+        let v = |ep, s, d| Validation {
+            rl_episodes: ep,
+            success: s,
+            collision: 1.0 - s,
+            disc: Some(d),
+        };
+        let runs = [
+            v(1000, 0.99, 0.01), // before the decay ends: not a candidate
+            v(2000, 0.96, 0.05),
+            v(2250, 0.94, 0.02), // below 0.95
+            v(2500, 1.00, 0.07),
+            v(2750, 0.95, 0.05), // ties with 2000: the later wins
+            v(3000, 0.98, 0.06),
+        ];
+        assert_eq!(low_disc(runs.clone(), 2000).unwrap().rl_episodes, 2750);
+        // Without a good validation after the decay: the best success.
+        let weak = [
+            v(2000, 0.90, 0.01),
+            v(2500, 0.93, 0.09),
+            v(3000, 0.91, 0.02),
+        ];
+        assert_eq!(low_disc(weak, 2000).unwrap().rl_episodes, 2500);
+        // Old logs without Disc.: the best success, too.
+        let old = [
+            Validation {
+                disc: None,
+                ..v(2500, 0.97, 0.0)
+            },
+            Validation {
+                disc: None,
+                ..v(3000, 0.99, 0.0)
+            },
+        ];
+        assert_eq!(low_disc(old, 0).unwrap().rl_episodes, 3000);
+        assert_eq!(low_disc([], 0), None);
+    }
+
+    #[test]
+    fn a_low_disc_run_reads_its_decay_from_its_config() {
+        let dir = tempfile::tempdir().unwrap();
+        let run = dir.path();
+        std::fs::create_dir_all(snapshot_dir(run)).unwrap();
+        let line = |ep: u64, s: f64, d: f64| {
+            format!(
+                "{{\"phase\":\"validation\",\"episode\":{ep},\"success_rate\":{s},\"collision_rate\":0.0,\"discomfort\":{d}}}\n"
+            )
+        };
+        std::fs::write(
+            run.join("metrics.jsonl"),
+            [
+                line(100, 1.0, 0.01),
+                line(300, 0.96, 0.04),
+                line(400, 0.97, 0.08),
+            ]
+            .concat(),
+        )
+        .unwrap();
+        for ep in [100, 300, 400] {
+            std::fs::write(snapshot_path(run, ep), b"x").unwrap();
+        }
+        std::fs::write(
+            run.join("config.toml"),
+            "[train]\nselect = \"low-disc\"\n[train.rl]\nepsilon_decay_episodes = 200\n",
+        )
+        .unwrap();
+        assert_eq!(run_policy(run, None).unwrap(), snapshot_path(run, 300));
+        assert_eq!(
+            run_policy(run, Some(Select::BestValidation)).unwrap(),
+            snapshot_path(run, 100)
+        );
     }
 }

@@ -283,6 +283,29 @@ fn best_validation_selection_keeps_snapshots_and_the_run_uses_the_best() {
         stdout.contains(&format!(", {best} RL episodes,")),
         "exported {stdout}"
     );
+    // --select overrides the run's rule: the last weights are those of all 6 episodes.
+    let o = fsrl()
+        .arg("export-model")
+        .arg(&out)
+        .arg("--out")
+        .arg(&model)
+        .args(["--check-episodes", "1", "--select", "last"])
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(stdout.contains(", 6 RL episodes,"), "exported {stdout}");
+    let o = fsrl()
+        .arg("eval")
+        .arg(&out)
+        .args(["--select", "gentlest"])
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        !o.status.success() && stderr.contains("not one of last, best-validation, low-disc"),
+        "{stderr}"
+    );
 
     // A distributed run cannot select (its evaluator keeps no weights): refused before it starts.
     let o = fsrl()

@@ -244,8 +244,9 @@ pub struct TrainConfig {
     pub validation_episodes: u32,
     /// First validation seed (CrowdNav: 0..99, disjoint from test 1000.. and training seeds).
     pub validation_seed_start: u64,
-    /// Which weights are the run's trained policy: the last (default, as CrowdNav) or the
-    /// validation snapshot with the best success (`docs/REPRODUCTION.md`, Experiment 5).
+    /// Which weights are the run's trained policy: the last (default, as CrowdNav), the
+    /// validation snapshot with the best success (`docs/REPRODUCTION.md`, Experiment 5) or the
+    /// gentlest good one (Experiment 11).
     pub select: Select,
 }
 
@@ -260,6 +261,26 @@ pub enum Select {
     /// collisions, then the earlier one); each validation keeps its weights as a model file.
     /// Selection uses the validation seeds only, never the test seeds.
     BestValidation,
+    /// The gentlest good validation (`docs/REPRODUCTION.md`, Experiment 11): among the
+    /// validations at or after the end of the ε decay whose success is at least
+    /// [`LOW_DISC_MIN_SUCCESS`], the one with the lowest Disc. (ties: the later); without one,
+    /// as `BestValidation`. Keeps every validation's weights, validation seeds only.
+    LowDisc,
+}
+
+/// The validation success a snapshot needs to be chosen by [`Select::LowDisc`] (issue 15's
+/// success target).
+pub const LOW_DISC_MIN_SUCCESS: f64 = 0.95;
+
+impl Select {
+    /// The name in config files (`train.select`).
+    pub fn name(self) -> &'static str {
+        match self {
+            Select::Last => "last",
+            Select::BestValidation => "best-validation",
+            Select::LowDisc => "low-disc",
+        }
+    }
 }
 
 impl Default for TrainConfig {
@@ -323,13 +344,13 @@ impl TrainConfig {
         if self.eval_episodes == 0 {
             p.push("train.eval_episodes must be at least 1".into());
         }
-        if self.select == Select::BestValidation
+        if self.select != Select::Last
             && (self.validation_every_episodes == 0 || self.validation_episodes == 0)
         {
-            p.push(
-                "train.select = \"best-validation\" needs validations (train.validation_every_episodes and train.validation_episodes at least 1)"
-                    .into(),
-            );
+            p.push(format!(
+                "train.select = \"{}\" needs validations (train.validation_every_episodes and train.validation_episodes at least 1)",
+                self.select.name()
+            ));
         }
         let (v0, t0) = (self.validation_seed_start, self.test_seed_start);
         let (v1, t1) = (
@@ -427,6 +448,20 @@ mod tests {
             >::new("best-validation"))
             .unwrap();
         assert_eq!(parsed, Select::BestValidation);
+        select.select = Select::LowDisc;
+        let p = select.problems();
+        assert!(
+            p.len() == 1 && p[0].contains("\"low-disc\" needs validations"),
+            "{p:?}"
+        );
+        for rule in [Select::Last, Select::BestValidation, Select::LowDisc] {
+            let parsed: Select =
+                serde::de::Deserialize::deserialize(serde::de::value::StrDeserializer::<
+                    serde::de::value::Error,
+                >::new(rule.name()))
+                .unwrap();
+            assert_eq!(parsed, rule);
+        }
     }
 }
 
