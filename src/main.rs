@@ -75,6 +75,23 @@ fn main() -> ExitCode {
         .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
         .init();
     let cli = Cli::parse();
+    if matches!(
+        cli.command,
+        Command::Sim(_)
+            | Command::Eval(_)
+            | Command::ExportModel(_)
+            | Command::Compare(_)
+            | Command::Plot(_)
+            | Command::CheckConfig(_)
+    ) {
+        // Commands that open no socket end quietly when their output is closed (`| head`), as
+        // Unix tools do, instead of panicking on the failed print. Networked ones keep Rust's
+        // ignored SIGPIPE, so a peer closing a connection is an error, not a kill.
+        // SAFETY: setting a signal's disposition to the default at startup, before any thread.
+        unsafe {
+            libc::signal(libc::SIGPIPE, libc::SIG_DFL);
+        }
+    }
     let result = match cli.command {
         Command::Sim(args) => cmd_sim::run(args),
         Command::Train(args) => cmd_train::run(args),

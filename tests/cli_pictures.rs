@@ -521,3 +521,28 @@ fn compare_tests_one_arm_against_another() {
         "{e}"
     );
 }
+
+/// A report command whose reader has gone (`fsrl compare ... | head -0`) ends by SIGPIPE, as Unix
+/// tools do, without a panic.
+#[test]
+fn a_closed_output_ends_a_report_quietly() {
+    use std::os::unix::process::ExitStatusExt;
+    let report = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("docs/results/paper-schedule/fsrl-4000x25-env1-invisible-s0.json");
+    let (reader, writer) = std::io::pipe().unwrap();
+    drop(reader);
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_fsrl"))
+        .arg("compare")
+        .arg(&report)
+        .stdout(writer)
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(
+        o.status.signal(),
+        Some(libc::SIGPIPE),
+        "{:?} {stderr}",
+        o.status
+    );
+    assert!(!stderr.contains("panicked"), "{stderr}");
+}
