@@ -26,11 +26,11 @@ fi
 curves=("$RUNS"/sarl-env1-invisible-s* "$RUNS"/fsrl-env1-invisible-s*)
 curves=("${curves[@]%.log}")
 "$FSRL" plot curves $(printf '%s\n' "${curves[@]}" | sort -u) --out "$OUT/curves"
-# The short, the paper, Experiment 8's and Experiment 9's schedules (Experiments 7-9): the runs'
+# The short, the paper and Experiments 8, 9 and 10's schedules (Experiments 7-10): the runs'
 # imitation and validation lines are committed in docs/results/paper-schedule/<group>-s<seed>/metrics.jsonl.
 # Only the validation pictures are kept (the files hold no per-episode RL lines).
 "$FSRL" plot curves docs/results/paper-schedule/*-s[0-9]/ \
-  --title "FSRL env1-invisible: four schedules (Experiments 7-9)" --out "$OUT/curves-schedules"
+  --title "FSRL env1-invisible: five schedules (Experiments 7-10)" --out "$OUT/curves-schedules"
 rm -f "$OUT"/curves-schedules.svg "$OUT"/curves-schedules.png
 "$FSRL" plot episode models/fsrl-env1-invisible-s0.fsrlm --seed 1000 --out "$OUT/episode" --gif-size 300 --stride 2
 cp "$RUNS/eval-six/eval.md" "$OUT/eval.md"
