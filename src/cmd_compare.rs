@@ -375,12 +375,11 @@ const TESTED: [Metric; 5] = [
     Metric::Disc,
 ];
 
-/// The sources of one arm of `--vs`, as a single method's group.
-fn arm(paths: &[PathBuf], name: &str) -> anyhow::Result<Group> {
-    let mut groups = group(load_sources(paths)?);
-    match groups.len() {
-        1 => Ok(groups.remove(0)),
-        0 => bail!("arm {name}: no policies in its sources"),
+/// One arm of `--vs`: its sources' groups must be a single method's.
+fn arm<'g>(groups: &'g [Group], name: &str) -> anyhow::Result<&'g Group> {
+    match groups {
+        [g] => Ok(g),
+        [] => bail!("arm {name}: no policies in its sources"),
         _ => bail!(
             "arm {name} holds several methods ({}); an arm of --vs is one method's runs",
             groups
@@ -519,20 +518,21 @@ fn arms_markdown(arms: [(&Group, &[PathBuf]); 2], tests: &[ArmTest]) -> String {
 }
 
 pub fn run(args: CompareArgs) -> anyhow::Result<()> {
+    let groups = group(load_sources(&args.runs)?);
     let arms = if args.vs.is_empty() {
         None
     } else {
-        let (a, b) = (arm(&args.runs, "A")?, arm(&args.vs, "B")?);
-        let tests = arm_tests(&a, &b);
+        let other = group(load_sources(&args.vs)?);
+        let (a, b) = (arm(&groups, "A")?, arm(&other, "B")?);
+        let tests = arm_tests(a, b);
         if tests.is_empty() {
             bail!("the two arms have no setting in common");
         }
         Some((
-            arms_markdown([(&a, &args.runs), (&b, &args.vs)], &tests),
+            arms_markdown([(a, &args.runs), (b, &args.vs)], &tests),
             tests,
         ))
     };
-    let groups = group(load_sources(&args.runs)?);
     let md = match &arms {
         Some((arms_md, _)) => format!("{arms_md}\n{}", markdown(&groups)),
         None => markdown(&groups),
