@@ -38,6 +38,9 @@ pub fn run(args: CheckArgs) -> anyhow::Result<()> {
                     r.method,
                     r.setting
                 );
+                if let Some(problem) = crate::select::distributed_problem(&r.file.train) {
+                    println!("  note: not for `fsrl run` or the role commands: {problem}");
+                }
                 if args.print {
                     println!("{}", toml::to_string(&r.file)?);
                 }

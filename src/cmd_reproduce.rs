@@ -350,13 +350,18 @@ pub fn plan(grid: &Grid, layout: &Layout, episodes: u32) -> Vec<Planned> {
 
 /// Rough costs, used until steps of this invocation have been timed. Measured with `fsrl
 /// train --single-process` on the 2-core development machine (2026-12): one SARL/FSRL RL
-/// episode with 100 batches of 100 takes about 0.35 s, 92 % of it learning (BENCHMARKS.md), so
-/// it scales with `rl.batches_per_episode`.
+/// episode with 100 batches of 100 takes about 0.35 s, 92 % of it learning (BENCHMARKS.md); but
+/// whole runs at 20 batches take longer than that share predicts (Experiment 10's 5000 × 20:
+/// 13.5 min with imitation and validations, about 0.14 s an episode), so the estimate lets three
+/// quarters scale with `rl.batches_per_episode`, fitted to both.
 const RL_EPISODE_S: f64 = 0.35;
-const RL_LEARNING_SHARE: f64 = 0.92;
-/// Imitation, 3000 demonstrations × 50 epochs: about 2 min, proportional to episodes × epochs.
-const IMITATION_S: f64 = 120.0;
-const IMITATION_UNITS: f64 = 3000.0 * 50.0;
+const RL_LEARNING_SHARE: f64 = 0.75;
+/// One imitation epoch: a shuffled pass over replay, about 2.6 s once 1000 demonstrations are in
+/// it (1000 × 30: 77 s; 3000 × 50: 136 s — replay holds at most `rl.replay_capacity`
+/// transitions, so more demonstrations cost little more per epoch); fewer demonstrations
+/// proportionally less.
+const IMITATION_EPOCH_S: f64 = 2.6;
+const IMITATION_FULL_EPISODES: f64 = 1000.0;
 /// One test episode of a SARL network on both cores (~70 steps × 1.24 ms per decision / 2).
 const TEST_EPISODE_S: f64 = 0.045;
 /// LSTM-RL against SARL: 3.76 vs 9.59 ms per update, 0.60 vs 1.02 ms per decision
@@ -380,7 +385,7 @@ pub fn rough_train_s(method: Method, t: &TrainConfig, state: Training) -> f64 {
         Training::Restart | Training::New => (true, 0),
     };
     let il_s = if imitation {
-        IMITATION_S * t.imitation.episodes as f64 * t.imitation.epochs as f64 / IMITATION_UNITS
+        rough_imitation_s(t.imitation.episodes, t.imitation.epochs)
     } else {
         0.0
     };
@@ -394,6 +399,11 @@ pub fn rough_train_s(method: Method, t: &TrainConfig, state: Training) -> f64 {
     };
     let test_episodes = validations * t.validation_episodes as f64 + t.eval_episodes as f64;
     method_factor(method) * (il_s + left * episode_s + test_episodes * TEST_EPISODE_S)
+}
+
+/// Rough seconds of the imitation phase: `epochs` passes over `episodes` demonstrations.
+fn rough_imitation_s(episodes: u64, epochs: u32) -> f64 {
+    IMITATION_EPOCH_S * (episodes as f64 / IMITATION_FULL_EPISODES).min(1.0) * epochs as f64
 }
 
 /// Rough seconds of one evaluation.
@@ -551,11 +561,11 @@ pub fn describe(
     }
     let _ = writeln!(
         s,
-        "{} runs: {finished} finished, {resume} to resume, {fresh} to train{}; {export} to export, {eval} to evaluate; estimated {} (rough: {RL_EPISODE_S} s per SARL/FSRL RL episode at 100 batches, imitation {} for 3000 × 50, LSTM-RL × {LSTM_RL_FACTOR}; calibrated on the runs timed once training starts)",
+        "{} runs: {finished} finished, {resume} to resume, {fresh} to train{}; {export} to export, {eval} to evaluate; estimated {} (rough: {RL_EPISODE_S} s per SARL/FSRL RL episode at 100 batches, imitation {} for 1000 × 30, LSTM-RL × {LSTM_RL_FACTOR}; calibrated on the runs timed once training starts)",
         planned.len(),
         if no_train && resume + fresh > 0 { " (skipped: --no-train)" } else { "" },
         duration_text(cal.eta_s(planned, t, episodes, no_train)),
-        duration_text(IMITATION_S),
+        duration_text(rough_imitation_s(1000, 30)),
     );
     s
 }
@@ -1043,8 +1053,9 @@ mod tests {
     #[test]
     fn rough_estimates_follow_the_schedule() {
         let t = TrainConfig::default();
-        // 2 min imitation + 10,000 × 0.35 s + (20 validations × 100 + 500) test episodes.
-        let fresh = 120.0 + 10_000.0 * 0.35 + 2500.0 * TEST_EPISODE_S;
+        // 3000 × 50 imitation (50 full epochs of 2.6 s) + 10,000 × 0.35 s + (20 validations ×
+        // 100 + 500) test episodes.
+        let fresh = 130.0 + 10_000.0 * 0.35 + 2500.0 * TEST_EPISODE_S;
         let sarl = rough_train_s(Method::Sarl, &t, Training::New);
         assert!((sarl - fresh).abs() < 1e-6, "{sarl}");
         assert_eq!(rough_train_s(Method::Fsrl, &t, Training::Restart), sarl);
@@ -1055,13 +1066,14 @@ mod tests {
         let expected = 4000.0 * 0.35 + (800.0 + 500.0) * TEST_EPISODE_S;
         assert!((resumed - expected).abs() < 1e-6, "{resumed}");
         assert_eq!(rough_train_s(Method::Sarl, &t, Training::Finished), 0.0);
-        // Half the batches: learning (92 %) halves.
+        // Half the batches: learning (75 %) halves; 500 demonstrations: half an epoch's cost.
         let mut half = t.clone();
         half.rl.batches_per_episode = 50;
         half.validation_every_episodes = 0;
         half.imitation.epochs = 25;
+        half.imitation.episodes = 500;
         let h = rough_train_s(Method::Sarl, &half, Training::New);
-        let expected = 60.0 + 10_000.0 * 0.35 * (0.08 + 0.46) + 500.0 * TEST_EPISODE_S;
+        let expected = 32.5 + 10_000.0 * 0.35 * (0.25 + 0.375) + 500.0 * TEST_EPISODE_S;
         assert!((h - expected).abs() < 1e-6, "{h}");
         assert!((rough_eval_s(Method::Sarl, 500) - 500.0 * TEST_EPISODE_S).abs() < 1e-9);
     }

@@ -1026,3 +1026,29 @@ fn imitation_learning_rate(printed: &str) -> f64 {
         .as_float()
         .expect("train.imitation.learning_rate is a number")
 }
+
+#[test]
+fn a_config_that_selects_a_snapshot_is_valid_and_noted_as_single_process_only() {
+    let fast = Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/fast.toml");
+    let local = deploy().join("local.toml");
+    let o = fsrl(&[
+        "check-config",
+        &fast.to_string_lossy(),
+        &local.to_string_lossy(),
+    ]);
+    let out = String::from_utf8_lossy(&o.stdout);
+    assert!(o.status.success(), "{out}");
+    let notes: Vec<&str> = out.lines().filter(|l| l.contains("note:")).collect();
+    assert_eq!(notes.len(), 1, "one note, for fast.toml only: {out}");
+    assert!(
+        notes[0].contains("train.select = \"low-disc\"") && notes[0].contains("--single-process"),
+        "{out}"
+    );
+    let first_ok = out.lines().position(|l| l.starts_with("ok: ")).unwrap();
+    let note = out.lines().position(|l| l.contains("note:")).unwrap();
+    assert_eq!(
+        note,
+        first_ok + 1,
+        "the note follows fast.toml's line: {out}"
+    );
+}
