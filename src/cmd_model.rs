@@ -51,6 +51,10 @@ pub fn run(args: ExportArgs) -> anyhow::Result<()> {
     let path = &input.checkpoint;
     let (mut model, _) =
         load_policy(path).with_context(|| format!("cannot load {}", path.display()))?;
+    // The model records the rule that chose its weights: --select's, where it overrode the run's.
+    if let (Some(rule), Some(_)) = (args.select, &input.run_dir) {
+        model.train.select = rule;
+    }
     let threads = args
         .threads
         .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
@@ -80,7 +84,7 @@ pub fn run(args: ExportArgs) -> anyhow::Result<()> {
 fn summary(m: &Model, size: u64, path: &std::path::Path) -> String {
     use std::fmt::Write as _;
     let mut s = format!(
-        "wrote {} ({size} bytes, {:.1} KiB)\n  method {}, {} network with {} parameters\n  trained on {}, run seed {}, run id {}\n  policy version {}, {} RL episodes, {} env steps\n",
+        "wrote {} ({size} bytes, {:.1} KiB)\n  method {}, {} network with {} parameters\n  trained on {}, run seed {}, run id {}\n  policy version {}, {} RL episodes, {} env steps, chosen by train.select = \"{}\"\n",
         path.display(),
         size as f64 / 1024.0,
         m.method,
@@ -92,6 +96,7 @@ fn summary(m: &Model, size: u64, path: &std::path::Path) -> String {
         m.counters.policy_version,
         m.counters.rl_episodes,
         m.counters.env_steps,
+        m.train.select.name(),
     );
     let count = |o: Outcome| m.check.iter().filter(|e| e.outcome == o).count();
     let (first, last) = (

@@ -280,7 +280,8 @@ fn best_validation_selection_keeps_snapshots_and_the_run_uses_the_best() {
     let stdout = String::from_utf8_lossy(&o.stdout);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     assert!(
-        stdout.contains(&format!(", {best} RL episodes,")),
+        stdout.contains(&format!(", {best} RL episodes,"))
+            && stdout.contains("chosen by train.select = \"best-validation\""),
         "exported {stdout}"
     );
     // --select overrides the run's rule: the last weights are those of all 6 episodes.
@@ -294,7 +295,10 @@ fn best_validation_selection_keeps_snapshots_and_the_run_uses_the_best() {
         .unwrap();
     let stdout = String::from_utf8_lossy(&o.stdout);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    assert!(stdout.contains(", 6 RL episodes,"), "exported {stdout}");
+    assert!(
+        stdout.contains(", 6 RL episodes,") && stdout.contains("chosen by train.select = \"last\""),
+        "the model records the rule that chose it: {stdout}"
+    );
     let o = fsrl()
         .arg("eval")
         .arg(&out)
