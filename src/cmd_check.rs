@@ -39,7 +39,7 @@ pub fn run(args: CheckArgs) -> anyhow::Result<()> {
                     r.setting
                 );
                 if let Some(problem) = crate::select::distributed_problem(&r.file.train) {
-                    println!("  note: not for `fsrl run` or the role commands: {problem}");
+                    println!("  note: not for multi-process `fsrl train` nor the learner/actor/evaluator commands: {problem}");
                 }
                 if args.print {
                     println!("{}", toml::to_string(&r.file)?);
