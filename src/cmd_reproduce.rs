@@ -561,11 +561,10 @@ pub fn describe(
     }
     let _ = writeln!(
         s,
-        "{} runs: {finished} finished, {resume} to resume, {fresh} to train{}; {export} to export, {eval} to evaluate; estimated {} (rough: {RL_EPISODE_S} s per SARL/FSRL RL episode at 100 batches, imitation {} for 1000 × 30, LSTM-RL × {LSTM_RL_FACTOR}; calibrated on the runs timed once training starts)",
+        "{} runs: {finished} finished, {resume} to resume, {fresh} to train{}; {export} to export, {eval} to evaluate; estimated {} (rough: {RL_EPISODE_S} s per SARL/FSRL RL episode at 100 batches, imitation {IMITATION_EPOCH_S} s an epoch over {IMITATION_FULL_EPISODES} or more demonstrations, LSTM-RL × {LSTM_RL_FACTOR}; calibrated on the runs timed once training starts)",
         planned.len(),
         if no_train && resume + fresh > 0 { " (skipped: --no-train)" } else { "" },
         duration_text(cal.eta_s(planned, t, episodes, no_train)),
-        duration_text(rough_imitation_s(1000, 30)),
     );
     s
 }
