@@ -89,6 +89,55 @@ fn last_wall(path: &Path) -> Duration {
     Duration::from_secs_f64(wall_s)
 }
 
+/// Cuts the `metrics.jsonl` of a run resumed from a checkpoint after `rl_episodes` RL episodes
+/// back to that checkpoint, and returns how many lines it dropped: the RL episodes from
+/// `rl_episodes` on and the validations the resumed run does again (those after the checkpoint;
+/// from a checkpoint straight after imitation, the one at episode 0 too), which an interrupted run
+/// logged after its last checkpoint, and a line torn by a crash (appended to, it would swallow the
+/// next line). Lines of other phases stay. Written beside the log and renamed over it, so a crash
+/// here leaves the old log or the new one.
+fn trim_metrics(path: &Path, rl_episodes: u64) -> anyhow::Result<usize> {
+    let text = match std::fs::read_to_string(path) {
+        Ok(t) => t,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(0),
+        Err(e) => return Err(e).with_context(|| format!("cannot read {}", path.display())),
+    };
+    let keep = |line: &str| -> bool {
+        let Ok(v) = serde_json::from_str::<serde_json::Value>(line) else {
+            return false;
+        };
+        let episode = v.get("episode").and_then(|e| e.as_u64());
+        match v.get("phase").and_then(|p| p.as_str()) {
+            Some("rl") => episode.is_some_and(|e| e < rl_episodes),
+            Some("validation") => {
+                episode.is_some_and(|e| e < rl_episodes || (e == rl_episodes && e > 0))
+            }
+            _ => v.is_object(),
+        }
+    };
+    let mut kept = String::with_capacity(text.len());
+    let mut dropped = 0;
+    for line in text.lines().filter(|l| !l.trim().is_empty()) {
+        if keep(line) {
+            kept.push_str(line);
+            kept.push('\n');
+        } else {
+            dropped += 1;
+        }
+    }
+    if dropped > 0 {
+        let tmp = path.with_extension("jsonl.tmp");
+        let write = || -> std::io::Result<()> {
+            let mut f = std::fs::File::create(&tmp)?;
+            f.write_all(kept.as_bytes())?;
+            f.sync_all()?;
+            std::fs::rename(&tmp, path)
+        };
+        write().with_context(|| format!("cannot rewrite {}", path.display()))?;
+    }
+    Ok(dropped)
+}
+
 /// One point of the learning curve (`phase = "validation"` in `metrics.jsonl`): the evaluator's
 /// validation of the online network, with the learner's counters and the run's clock.
 fn validation_line(
@@ -229,8 +278,15 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
         accepted_below: Default::default(),
     };
     let metrics_path = out.join("metrics.jsonl");
-    // A resumed run's clock goes on from where its metrics left off.
+    // A resumed run's log is cut back to its checkpoint, and its clock goes on from there.
     let wall0 = if args.resume {
+        let dropped = trim_metrics(&metrics_path, core.counters().rl_episodes)?;
+        if dropped > 0 {
+            eprintln!(
+                "{}: dropped {dropped} lines logged after the checkpoint (the resumed run does that work again)",
+                metrics_path.display()
+            );
+        }
         last_wall(&metrics_path)
     } else {
         Duration::ZERO

@@ -90,13 +90,36 @@ fn a_short_run_leaves_a_complete_run_directory_and_resumes() {
     assert!(!o.status.success());
     assert!(String::from_utf8_lossy(&o.stderr).contains("--resume"));
 
+    // What a crash leaves after the last checkpoint (an RL episode and a validation the resumed
+    // run does again, then a torn line) is cut away: no episode twice, no line swallowed.
+    {
+        use std::io::Write;
+        let mut log = std::fs::OpenOptions::new()
+            .append(true)
+            .open(out.join("metrics.jsonl"))
+            .unwrap();
+        write!(
+            log,
+            "{}\n{}\n{{\"phase\":\"rl\",\"epi",
+            serde_json::json!({"phase": "rl", "episode": 3, "loss": 0.5, "wall_s": 1e6}),
+            serde_json::json!({"phase": "validation", "episode": 4, "success_rate": 0.0,
+                "collision_rate": 1.0, "timeout_rate": 0.0, "episodes": 100, "seed_start": 0,
+                "wall_s": 1e6}),
+        )
+        .unwrap();
+    }
     // --resume continues where it stopped.
     let o = short(&out)
         .args(["--rl-episodes", "5", "--resume"])
         .output()
         .unwrap();
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    assert!(String::from_utf8_lossy(&o.stderr).contains("3 RL episodes done"));
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{stderr}");
+    assert!(stderr.contains("3 RL episodes done"), "{stderr}");
+    assert!(
+        stderr.contains("dropped 3 lines logged after the checkpoint"),
+        "{stderr}"
+    );
     let lines = rl_lines(&out);
     let episodes: Vec<u64> = lines
         .iter()
