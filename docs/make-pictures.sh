@@ -4,7 +4,7 @@
 # Every model trained on env1-invisible with seed 0 is evaluated with ORCA on all six settings
 # (bars.png: how a policy trained in one setting does in the others); every shipped model is
 # evaluated on the setting it was trained in (docs/results/grid/<model>.{md,json}, kept while
-# newer than the model), drawn as the paper's Fig. 5 grid (bars-grid.png) and put in one table,
+# the report's checkpoint_crc32 is the model file's CRC-32), drawn as the paper's Fig. 5 grid (bars-grid.png) and put in one table,
 # mean ± std over seeds (docs/results/grid-compare/compare.md).
 #   docs/make-pictures.sh [FSRL_BINARY]
 set -euo pipefail
@@ -39,7 +39,8 @@ mkdir -p "$GRID"
 for m in models/*.fsrlm; do
   name=$(basename "$m" .fsrlm)
   setting=$(echo "$name" | grep -oE 'env[123]-(in)?visible')
-  if [ ! "$GRID/$name.json" -nt "$m" ]; then
+  crc=$(python3 -c 'import sys, zlib; print("%08x" % zlib.crc32(open(sys.argv[1], "rb").read()))' "$m")
+  if ! grep -q "\"checkpoint_crc32\": \"$crc\"" "$GRID/$name.json" 2>/dev/null; then
     "$FSRL" eval "$m" --settings "$setting" --episodes "$EPISODES" --out "$RUNS/eval-grid/$name"
     cp "$RUNS/eval-grid/$name/eval.json" "$GRID/$name.json"
     cp "$RUNS/eval-grid/$name/eval.md" "$GRID/$name.md"

@@ -129,6 +129,26 @@ pub fn load_policy(path: &Path) -> anyhow::Result<(Model, ArtifactKind)> {
 
 /// A model file names its method, trained setting and seed (its file name need not); a
 /// checkpoint keeps its run's name.
+/// CRC-32 (IEEE, as zlib's `crc32`) of a file's bytes, 8 lowercase hex digits: the content id a
+/// report records for the file it evaluated ([`crate::report::SubjectReport::checkpoint_crc32`]).
+pub fn file_crc32(path: &Path) -> anyhow::Result<String> {
+    use std::io::Read;
+    let mut f =
+        std::fs::File::open(path).with_context(|| format!("cannot open {}", path.display()))?;
+    let mut hasher = crc32fast::Hasher::new();
+    let mut buf = vec![0u8; 1 << 20];
+    loop {
+        let n = f
+            .read(&mut buf)
+            .with_context(|| format!("cannot read {}", path.display()))?;
+        if n == 0 {
+            break;
+        }
+        hasher.update(&buf[..n]);
+    }
+    Ok(format!("{:08x}", hasher.finalize()))
+}
+
 pub fn subject_label(input: &Input, model: &Model, kind: ArtifactKind) -> String {
     match kind {
         ArtifactKind::Model => format!(
@@ -287,6 +307,7 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
             label: "orca".into(),
             method: "orca".into(),
             checkpoint: None,
+            checkpoint_crc32: None,
             policy_version: 0,
             run_seed: None,
             trained_setting: None,
@@ -321,6 +342,7 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
             label,
             method: method.name().to_string(),
             checkpoint: Some(input.checkpoint.display().to_string()),
+            checkpoint_crc32: Some(file_crc32(&input.checkpoint)?),
             policy_version: model.counters.policy_version,
             run_seed: Some(model.run_seed),
             trained_setting: Some(model.setting.name().to_string()),

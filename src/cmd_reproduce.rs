@@ -259,8 +259,10 @@ pub fn model_is_current(model: &Path, run_dir: &Path) -> bool {
     }
 }
 
-/// An `eval.json` in `dir` of one policy on `settings` with `episodes` test episodes each, at
-/// least as new as `source` (the model evaluated) when given.
+/// An `eval.json` in `dir` of one policy on `settings` with `episodes` test episodes each, of
+/// `source` (the model evaluated) when given: of its exact bytes where the report records their
+/// CRC-32 (a checkout or a copy changes modification times, not contents), otherwise at least as
+/// new as it.
 pub fn eval_is_current(
     dir: &Path,
     settings: &[Setting],
@@ -271,17 +273,25 @@ pub fn eval_is_current(
     let Some(written) = modified(&path) else {
         return false;
     };
-    if let Some(source) = source {
-        if modified(source).is_none_or(|s| written < s) {
-            return false;
-        }
-    }
     let Some(report) = std::fs::read_to_string(&path)
         .ok()
         .and_then(|t| serde_json::from_str::<EvalReport>(&t).ok())
     else {
         return false;
     };
+    if let Some(source) = source {
+        let recorded = report
+            .subjects
+            .first()
+            .and_then(|s| s.checkpoint_crc32.as_ref());
+        let same = match recorded {
+            Some(crc) => crate::cmd_eval::file_crc32(source).is_ok_and(|c| &c == crc),
+            None => modified(source).is_some_and(|s| written >= s),
+        };
+        if !same {
+            return false;
+        }
+    }
     report.kind == EVAL_KIND
         && report.episodes_per_setting == episodes
         && report.subjects.len() == 1
@@ -941,6 +951,7 @@ mod tests {
             label: "x".into(),
             method: "sarl".into(),
             checkpoint: None,
+            checkpoint_crc32: None,
             policy_version: 1,
             run_seed: Some(0),
             trained_setting: None,
@@ -1022,6 +1033,40 @@ mod tests {
         let all: Vec<&str> = Setting::ALL.iter().map(|s| s.name()).collect();
         std::fs::write(orca.join("eval.json"), eval_json(&all, 500)).unwrap();
         assert!(eval_is_current(&orca, &Setting::ALL, 500, None));
+    }
+
+    #[test]
+    fn an_evaluation_that_records_the_model_crc_is_judged_by_content_not_time() {
+        let tmp = tempfile::tempdir().unwrap();
+        let (model, dir) = (tmp.path().join("m.fsrlm"), tmp.path().join("eval"));
+        std::fs::create_dir_all(&dir).unwrap();
+        std::fs::write(&model, "weights").unwrap();
+        let with_crc = |crc: &str| {
+            let mut v: serde_json::Value =
+                serde_json::from_str(&eval_json(&["env2-visible"], 500)).unwrap();
+            v["subjects"][0]["checkpoint_crc32"] = crc.into();
+            std::fs::write(dir.join("eval.json"), v.to_string()).unwrap();
+        };
+        let settings = [set("env2-visible")];
+        let crc = crate::cmd_eval::file_crc32(&model).unwrap();
+        assert_eq!(crc, "1ad27358", "Python's '%08x' % zlib.crc32(b'weights')");
+        with_crc(&crc);
+        touch(&dir.join("eval.json"), 100);
+        touch(&model, 10);
+        assert!(
+            eval_is_current(&dir, &settings, 500, Some(&model)),
+            "a model newer than its report (a checkout) with the same bytes"
+        );
+        std::fs::write(&model, "other weights").unwrap();
+        touch(&model, 200);
+        assert!(
+            !eval_is_current(&dir, &settings, 500, Some(&model)),
+            "other bytes, older than the report (a copy keeping its time)"
+        );
+        with_crc("00000000");
+        assert!(!eval_is_current(&dir, &settings, 500, Some(&model)));
+        std::fs::remove_file(&model).unwrap();
+        assert!(!eval_is_current(&dir, &settings, 500, Some(&model)));
     }
 
     #[test]

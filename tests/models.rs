@@ -225,6 +225,9 @@ fn every_command_that_takes_a_checkpoint_takes_a_model_file() {
     assert_eq!(subj["trained_setting"], "env1-invisible");
     assert_eq!(subj["run_seed"], 11);
     assert_eq!(subj["checkpoint"], s(&model_path));
+    // Which exact bytes were evaluated (docs/make-pictures.sh and `fsrl reproduce` compare it).
+    let crc = crc32fast::hash(&std::fs::read(&model_path).unwrap());
+    assert_eq!(subj["checkpoint_crc32"], format!("{crc:08x}"), "{subj}");
     let wins = model
         .check
         .iter()
