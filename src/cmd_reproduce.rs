@@ -200,6 +200,8 @@ pub enum Training {
     /// Interrupted: `checkpoints/latest.ckpt` without `report.json` (the first checkpoint is
     /// written after imitation, so only RL is left).
     Resume {
+        /// RL episodes in `metrics.jsonl`: the checkpoint's, or more when the run stopped
+        /// without one (the resumed training does those again and cuts them from the log).
         rl_done: u64,
     },
     /// A directory with neither (stopped during imitation): removed and started again.
@@ -225,7 +227,9 @@ impl Training {
     fn text(self) -> String {
         match self {
             Training::Finished => "finished".into(),
-            Training::Resume { rl_done } => format!("resume ({rl_done} RL ep. done)"),
+            Training::Resume { rl_done } => {
+                format!("resume ({rl_done} RL ep. logged; from the last checkpoint)")
+            }
             Training::Restart => "restart".into(),
             Training::New => "new".into(),
         }
@@ -1242,7 +1246,10 @@ mod tests {
             ]
         );
         let text = describe(&p, false, &g.file.train, 500, false);
-        assert!(text.contains("resume (0 RL ep. done)"), "{text}");
+        assert!(
+            text.contains("resume (0 RL ep. logged; from the last checkpoint)"),
+            "{text}"
+        );
         assert!(
             text.contains(
                 "4 runs: 0 finished, 1 to resume, 3 to train; 4 to export, 4 to evaluate"
