@@ -2,7 +2,8 @@
 # Regenerates the README's pictures from the shipped models (models/) and, for the learning
 # curves, the runs they came from (runs/reproduce, made by `fsrl reproduce`; docs/REPRODUCTION.md).
 # Every model trained on env1-invisible with seed 0 is evaluated with ORCA on all six settings
-# (bars.png: how a policy trained in one setting does in the others); every shipped model is
+# (bars.png: how a policy trained in one setting does in the others; kept while its eval.json
+# records exactly these models' CRC-32s); every shipped model is
 # evaluated on the setting it was trained in (docs/results/grid/<model>.{md,json}, kept while
 # the report's checkpoint_crc32 is the model file's CRC-32), drawn as the paper's Fig. 5 grid (bars-grid.png) and put in one table,
 # mean ± std over seeds (docs/results/grid-compare/compare.md).
@@ -20,7 +21,23 @@ if [ ${#models[@]} -eq 0 ]; then
   echo "no models/*-env1-invisible-s0.fsrlm: run fsrl reproduce first" >&2
   exit 1
 fi
-"$FSRL" eval --orca "${models[@]}" --episodes "$EPISODES" --out "$RUNS/eval-six"
+crc32() { python3 -c 'import sys, zlib; print("%08x" % zlib.crc32(open(sys.argv[1], "rb").read()))' "$1"; }
+# An evaluation of $2 in report $1 (eval.json) is current when the report records the file's CRC-32
+# with the episode count asked for.
+evaluated() {
+  grep -q "\"checkpoint_crc32\": \"$(crc32 "$2")\"" "$1" 2>/dev/null &&
+    grep -q "\"episodes_per_setting\": $EPISODES," "$1"
+}
+six_current=yes
+for m in "${models[@]}"; do evaluated "$RUNS/eval-six/eval.json" "$m" || six_current=no; done
+# The same models (and no others) and ORCA: kept; otherwise evaluated again.
+if [ "$six_current" = yes ] &&
+  [ "$(grep -c '"checkpoint_crc32"' "$RUNS/eval-six/eval.json")" -eq ${#models[@]} ] &&
+  grep -q '"label": "orca"' "$RUNS/eval-six/eval.json"; then
+  echo "$RUNS/eval-six/eval.json is of these models: kept"
+else
+  "$FSRL" eval --orca "${models[@]}" --episodes "$EPISODES" --out "$RUNS/eval-six"
+fi
 "$FSRL" plot bars "$RUNS/eval-six/eval.json" --out "$OUT/bars"
 "$FSRL" plot ablation "$RUNS/eval-six/eval.json" --out "$OUT/ablation" || echo "no ablation picture (needs sarl, sarl+foresight, sarl+efficiency and fsrl models)" >&2
 curves=("$RUNS"/sarl-env1-invisible-s* "$RUNS"/fsrl-env1-invisible-s*)
@@ -39,8 +56,7 @@ mkdir -p "$GRID"
 for m in models/*.fsrlm; do
   name=$(basename "$m" .fsrlm)
   setting=$(echo "$name" | grep -oE 'env[123]-(in)?visible')
-  crc=$(python3 -c 'import sys, zlib; print("%08x" % zlib.crc32(open(sys.argv[1], "rb").read()))' "$m")
-  if ! grep -q "\"checkpoint_crc32\": \"$crc\"" "$GRID/$name.json" 2>/dev/null; then
+  if ! evaluated "$GRID/$name.json" "$m"; then
     "$FSRL" eval "$m" --settings "$setting" --episodes "$EPISODES" --out "$RUNS/eval-grid/$name"
     cp "$RUNS/eval-grid/$name/eval.json" "$GRID/$name.json"
     cp "$RUNS/eval-grid/$name/eval.md" "$GRID/$name.md"
