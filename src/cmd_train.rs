@@ -518,3 +518,83 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
     );
     Ok(())
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn lines(path: &Path) -> Vec<serde_json::Value> {
+        std::fs::read_to_string(path)
+            .unwrap()
+            .lines()
+            .map(|l| serde_json::from_str(l).unwrap())
+            .collect()
+    }
+
+    #[test]
+    fn a_log_is_cut_back_to_a_checkpoint_taken_straight_after_imitation() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("metrics.jsonl");
+        std::fs::write(
+            &path,
+            concat!(
+                "{\"phase\":\"imitation\",\"epoch\":0,\"wall_s\":3.0}\n",
+                "{\"phase\":\"imitation\",\"epoch\":1,\"wall_s\":7.0}\n",
+                "{\"phase\":\"validation\",\"episode\":0,\"wall_s\":9.0}\n",
+                "{\"phase\":\"rl\",\"episode\":0,\"wall_s\":10.0}\n",
+                "{\"phase\":\"rl\",\"episode\":1,\"wall_s\":11.0}\n",
+                "\n",
+                "{\"phase\":\"rl\",\"epi",
+            ),
+        )
+        .unwrap();
+        // The checkpoint after imitation: the resumed run validates episode 0 again.
+        assert_eq!(trim_metrics(&path, 0).unwrap(), 4);
+        let kept = lines(&path);
+        assert_eq!(kept.len(), 2);
+        assert!(kept.iter().all(|v| v["phase"] == "imitation"));
+        assert_eq!(last_wall(&path), Duration::from_secs(7));
+        // Nothing more to cut: the file is left as it is.
+        assert_eq!(trim_metrics(&path, 0).unwrap(), 0);
+        // No log yet: nothing to do.
+        assert_eq!(trim_metrics(&dir.path().join("none.jsonl"), 5).unwrap(), 0);
+    }
+
+    #[test]
+    fn a_later_checkpoint_keeps_its_own_validation() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("metrics.jsonl");
+        let mut text = String::new();
+        for k in 0..6 {
+            text += &format!("{{\"phase\":\"rl\",\"episode\":{k}}}\n");
+            if (k + 1) % 2 == 0 {
+                text += &format!("{{\"phase\":\"validation\",\"episode\":{}}}\n", k + 1);
+            }
+        }
+        std::fs::write(&path, text).unwrap();
+        // Checkpoint after 4 episodes, written after the validation at 4.
+        assert_eq!(trim_metrics(&path, 4).unwrap(), 3);
+        let kept: Vec<(String, u64)> = lines(&path)
+            .iter()
+            .map(|v| {
+                (
+                    v["phase"].as_str().unwrap().to_string(),
+                    v["episode"].as_u64().unwrap(),
+                )
+            })
+            .collect();
+        let expect = [
+            ("rl", 0),
+            ("rl", 1),
+            ("validation", 2),
+            ("rl", 2),
+            ("rl", 3),
+            ("validation", 4),
+        ];
+        assert_eq!(
+            kept,
+            expect.map(|(p, e)| (p.to_string(), e)).to_vec(),
+            "episodes 4 and 5 and the validation at 6 go"
+        );
+    }
+}
