@@ -127,8 +127,6 @@ pub fn load_policy(path: &Path) -> anyhow::Result<(Model, ArtifactKind)> {
     model::load_policy(path).with_context(|| format!("cannot load {}", path.display()))
 }
 
-/// A model file names its method, trained setting and seed (its file name need not); a
-/// checkpoint keeps its run's name.
 /// CRC-32 (IEEE, as zlib's `crc32`) of a file's bytes, 8 lowercase hex digits: the content id a
 /// report records for the file it evaluated ([`crate::report::SubjectReport::checkpoint_crc32`]).
 pub fn file_crc32(path: &Path) -> anyhow::Result<String> {
@@ -149,6 +147,8 @@ pub fn file_crc32(path: &Path) -> anyhow::Result<String> {
     Ok(format!("{:08x}", hasher.finalize()))
 }
 
+/// A model file names its method, trained setting and seed (its file name need not); a
+/// checkpoint keeps its run's name.
 pub fn subject_label(input: &Input, model: &Model, kind: ArtifactKind) -> String {
     match kind {
         ArtifactKind::Model => format!(
