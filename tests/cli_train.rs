@@ -292,32 +292,27 @@ fn best_validation_selection_keeps_snapshots_and_the_run_uses_the_best() {
     assert!(stderr.contains(&said), "final evaluation: {stderr}");
     // export-model of the run directory writes that snapshot's weights.
     let model = dir.path().join("m.fsrlm");
-    let o = fsrl()
-        .arg("export-model")
-        .arg(&out)
-        .arg("--out")
-        .arg(&model)
-        .args(["--check-episodes", "1"])
-        .output()
-        .unwrap();
-    let stdout = String::from_utf8_lossy(&o.stdout);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let export = |extra: &[&str]| -> String {
+        let o = fsrl()
+            .arg("export-model")
+            .arg(&out)
+            .arg("--out")
+            .arg(&model)
+            .args(["--check-episodes", "1"])
+            .args(extra)
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        String::from_utf8_lossy(&o.stdout).into_owned()
+    };
+    let stdout = export(&[]);
     assert!(
         stdout.contains(&format!(", {best} RL episodes,"))
             && stdout.contains("chosen by train.select = \"best-validation\""),
         "exported {stdout}"
     );
     // --select overrides the run's rule: the last weights are those of all 6 episodes.
-    let o = fsrl()
-        .arg("export-model")
-        .arg(&out)
-        .arg("--out")
-        .arg(&model)
-        .args(["--check-episodes", "1", "--select", "last"])
-        .output()
-        .unwrap();
-    let stdout = String::from_utf8_lossy(&o.stdout);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let stdout = export(&["--select", "last"]);
     assert!(
         stdout.contains(", 6 RL episodes,") && stdout.contains("chosen by train.select = \"last\""),
         "the model records the rule that chose it: {stdout}"
