@@ -3,9 +3,10 @@
 # curves, the runs they came from (runs/reproduce, made by `fsrl reproduce`; docs/REPRODUCTION.md).
 # Every model trained on env1-invisible with seed 0 is evaluated with ORCA on all six settings
 # (bars.png: how a policy trained in one setting does in the others; kept while its eval.json
-# records exactly these models' CRC-32s); every shipped model is
-# evaluated on the setting it was trained in (docs/results/grid/<model>.{md,json}, kept while
-# the report's checkpoint_crc32 is the model file's CRC-32), drawn as the paper's Fig. 5 grid (bars-grid.png) and put in one table,
+# records exactly these models' SHA-256s); every shipped model is evaluated on the setting it
+# was trained in (docs/results/grid/<model>.{md,json}, kept while the report's checkpoint_sha256
+# is the model file's SHA-256), drawn as the paper's Fig. 5 grid (bars-grid.png) and put in one
+# table,
 # mean ± std over seeds (docs/results/grid-compare/compare.md).
 #   docs/make-pictures.sh [FSRL_BINARY]
 set -euo pipefail
@@ -21,18 +22,18 @@ if [ ${#models[@]} -eq 0 ]; then
   echo "no models/*-env1-invisible-s0.fsrlm: run fsrl reproduce first" >&2
   exit 1
 fi
-crc32() { python3 -c 'import sys, zlib; print("%08x" % zlib.crc32(open(sys.argv[1], "rb").read()))' "$1"; }
-# An evaluation of $2 in report $1 (eval.json) is current when the report records the file's CRC-32
-# with the episode count asked for.
+sha256() { sha256sum "$1" | cut -d' ' -f1; }
+# An evaluation of $2 in report $1 (eval.json) is current when the report records the file's
+# SHA-256 with the episode count asked for.
 evaluated() {
-  grep -q "\"checkpoint_crc32\": \"$(crc32 "$2")\"" "$1" 2>/dev/null &&
+  grep -q "\"checkpoint_sha256\": \"$(sha256 "$2")\"" "$1" 2>/dev/null &&
     grep -q "\"episodes_per_setting\": $EPISODES," "$1"
 }
 six_current=yes
 for m in "${models[@]}"; do evaluated "$RUNS/eval-six/eval.json" "$m" || six_current=no; done
 # The same models (and no others) and ORCA: kept; otherwise evaluated again.
 if [ "$six_current" = yes ] &&
-  [ "$(grep -c '"checkpoint_crc32"' "$RUNS/eval-six/eval.json")" -eq ${#models[@]} ] &&
+  [ "$(grep -c '"checkpoint_sha256"' "$RUNS/eval-six/eval.json")" -eq ${#models[@]} ] &&
   grep -q '"label": "orca"' "$RUNS/eval-six/eval.json"; then
   echo "$RUNS/eval-six/eval.json is of these models: kept"
 else

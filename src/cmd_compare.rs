@@ -89,7 +89,7 @@ pub fn load_sources(paths: &[PathBuf]) -> anyhow::Result<Vec<Sourced>> {
                         checkpoint: Some(path.join("checkpoints").join("latest.ckpt"))
                             .filter(|c| c.exists())
                             .map(|c| c.display().to_string()),
-                        checkpoint_crc32: None,
+                        checkpoint_sha256: None,
                         policy_version: r.policy_version,
                         run_seed: cfg.as_ref().map(|c| c.run.seed),
                         trained_setting: cfg.map(|c| c.run.setting),

@@ -127,13 +127,18 @@ pub fn load_policy(path: &Path) -> anyhow::Result<(Model, ArtifactKind)> {
     model::load_policy(path).with_context(|| format!("cannot load {}", path.display()))
 }
 
-/// CRC-32 (IEEE, as zlib's `crc32`) of a file's bytes, 8 lowercase hex digits: the content id a
-/// report records for the file it evaluated ([`crate::report::SubjectReport::checkpoint_crc32`]).
-pub fn file_crc32(path: &Path) -> anyhow::Result<String> {
+/// SHA-256 of a file's bytes, 64 lowercase hex digits (as `sha256sum`): the content id a report
+/// records for the file it evaluated ([`crate::report::SubjectReport::checkpoint_sha256`]).
+///
+/// Not a CRC: model files and checkpoints end with the CRC-32 of their payload, and the CRC-32 of
+/// such a file is the same for every payload of one length (CRC's residue), so it told the
+/// weights of two runs of one configuration apart no better than their size did.
+pub fn file_sha256(path: &Path) -> anyhow::Result<String> {
     use std::io::Read;
     let mut f =
         std::fs::File::open(path).with_context(|| format!("cannot open {}", path.display()))?;
-    let mut hasher = crc32fast::Hasher::new();
+    use sha2::Digest;
+    let mut hasher = sha2::Sha256::new();
     let mut buf = vec![0u8; 1 << 20];
     loop {
         let n = f
@@ -144,7 +149,11 @@ pub fn file_crc32(path: &Path) -> anyhow::Result<String> {
         }
         hasher.update(&buf[..n]);
     }
-    Ok(format!("{:08x}", hasher.finalize()))
+    Ok(hasher
+        .finalize()
+        .iter()
+        .map(|b| format!("{b:02x}"))
+        .collect())
 }
 
 /// A model file names its method, trained setting and seed (its file name need not); a
@@ -307,7 +316,7 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
             label: "orca".into(),
             method: "orca".into(),
             checkpoint: None,
-            checkpoint_crc32: None,
+            checkpoint_sha256: None,
             policy_version: 0,
             run_seed: None,
             trained_setting: None,
@@ -342,7 +351,7 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
             label,
             method: method.name().to_string(),
             checkpoint: Some(input.checkpoint.display().to_string()),
-            checkpoint_crc32: Some(file_crc32(&input.checkpoint)?),
+            checkpoint_sha256: Some(file_sha256(&input.checkpoint)?),
             policy_version: model.counters.policy_version,
             run_seed: Some(model.run_seed),
             trained_setting: Some(model.setting.name().to_string()),

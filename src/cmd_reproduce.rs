@@ -265,8 +265,8 @@ pub fn model_is_current(model: &Path, run_dir: &Path) -> bool {
 
 /// An `eval.json` in `dir` of one policy on `settings` with `episodes` test episodes each, of
 /// `source` (the model evaluated) when given: of its exact bytes where the report records their
-/// CRC-32 (a checkout or a copy changes modification times, not contents), otherwise at least as
-/// new as it.
+/// SHA-256 (a checkout or a copy changes modification times, not contents), otherwise at least
+/// as new as it.
 pub fn eval_is_current(
     dir: &Path,
     settings: &[Setting],
@@ -287,9 +287,9 @@ pub fn eval_is_current(
         let recorded = report
             .subjects
             .first()
-            .and_then(|s| s.checkpoint_crc32.as_ref());
+            .and_then(|s| s.checkpoint_sha256.as_ref());
         let same = match recorded {
-            Some(crc) => crate::cmd_eval::file_crc32(source).is_ok_and(|c| &c == crc),
+            Some(sha) => crate::cmd_eval::file_sha256(source).is_ok_and(|c| &c == sha),
             None => modified(source).is_some_and(|s| written >= s),
         };
         if !same {
@@ -955,7 +955,7 @@ mod tests {
             label: "x".into(),
             method: "sarl".into(),
             checkpoint: None,
-            checkpoint_crc32: None,
+            checkpoint_sha256: None,
             policy_version: 1,
             run_seed: Some(0),
             trained_setting: None,
@@ -1040,35 +1040,60 @@ mod tests {
     }
 
     #[test]
-    fn an_evaluation_that_records_the_model_crc_is_judged_by_content_not_time() {
+    fn an_evaluation_that_records_the_model_hash_is_judged_by_content_not_time() {
         let tmp = tempfile::tempdir().unwrap();
         let (model, dir) = (tmp.path().join("m.fsrlm"), tmp.path().join("eval"));
         std::fs::create_dir_all(&dir).unwrap();
-        std::fs::write(&model, "weights").unwrap();
-        let with_crc = |crc: &str| {
+        // Like a model file: a payload followed by its CRC-32. The CRC-32 of such files is one
+        // value for every payload of a length (what the reports recorded before SHA-256).
+        let framed = |payload: &[u8]| {
+            let mut bytes = payload.to_vec();
+            bytes.extend_from_slice(&crc32fast::hash(payload).to_le_bytes());
+            bytes
+        };
+        let (ours, theirs) = (framed(b"weights of seed 1"), framed(b"weights of seed 2"));
+        assert_eq!(crc32fast::hash(&ours), crc32fast::hash(&theirs));
+        let with = |field: &str, id: &str| {
             let mut v: serde_json::Value =
                 serde_json::from_str(&eval_json(&["env2-visible"], 500)).unwrap();
-            v["subjects"][0]["checkpoint_crc32"] = crc.into();
+            v["subjects"][0][field] = id.into();
             std::fs::write(dir.join("eval.json"), v.to_string()).unwrap();
         };
         let settings = [set("env2-visible")];
-        let crc = crate::cmd_eval::file_crc32(&model).unwrap();
-        assert_eq!(crc, "1ad27358", "Python's '%08x' % zlib.crc32(b'weights')");
-        with_crc(&crc);
+        std::fs::write(&model, b"weights").unwrap();
+        assert_eq!(
+            crate::cmd_eval::file_sha256(&model).unwrap(),
+            "9a129038d9a00aed0cf6a7ea059ca50a813449061ab87848cf1a13eafdf33b2c",
+            "sha256sum of b\"weights\""
+        );
+        std::fs::write(&model, &ours).unwrap();
+        with(
+            "checkpoint_sha256",
+            &crate::cmd_eval::file_sha256(&model).unwrap(),
+        );
         touch(&dir.join("eval.json"), 100);
         touch(&model, 10);
         assert!(
             eval_is_current(&dir, &settings, 500, Some(&model)),
             "a model newer than its report (a checkout) with the same bytes"
         );
-        std::fs::write(&model, "other weights").unwrap();
+        std::fs::write(&model, &theirs).unwrap();
         touch(&model, 200);
         assert!(
             !eval_is_current(&dir, &settings, 500, Some(&model)),
-            "other bytes, older than the report (a copy keeping its time)"
+            "another run's weights of the same length, older than the report (a copy keeping its time)"
         );
-        with_crc("00000000");
+        // A report of an older fsrl records only the CRC-32: it is not trusted as an id, and the
+        // modification times decide.
+        with(
+            "checkpoint_crc32",
+            &format!("{:08x}", crc32fast::hash(&theirs)),
+        );
+        touch(&dir.join("eval.json"), 100);
+        touch(&model, 10);
         assert!(!eval_is_current(&dir, &settings, 500, Some(&model)));
+        touch(&model, 300);
+        assert!(eval_is_current(&dir, &settings, 500, Some(&model)));
         std::fs::remove_file(&model).unwrap();
         assert!(!eval_is_current(&dir, &settings, 500, Some(&model)));
     }

@@ -461,10 +461,11 @@ pub struct SubjectReport {
     pub method: String,
     /// The checkpoint or model file evaluated (null for ORCA).
     pub checkpoint: Option<String>,
-    /// CRC-32 (IEEE, 8 hex digits) of that file's bytes when it was evaluated: which exact
-    /// weights the report is of (absent for ORCA and in reports of older fsrl versions).
+    /// SHA-256 (64 hex digits) of that file's bytes when it was evaluated: which exact weights
+    /// the report is of (absent for ORCA and in reports of older fsrl versions; the
+    /// `checkpoint_crc32` those wrote is ignored, see [`crate::cmd_eval::file_sha256`]).
     #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub checkpoint_crc32: Option<String>,
+    pub checkpoint_sha256: Option<String>,
     pub policy_version: u64,
     /// The training run's seed and setting, when known.
     pub run_seed: Option<u64>,

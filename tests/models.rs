@@ -226,8 +226,14 @@ fn every_command_that_takes_a_checkpoint_takes_a_model_file() {
     assert_eq!(subj["run_seed"], 11);
     assert_eq!(subj["checkpoint"], s(&model_path));
     // Which exact bytes were evaluated (docs/make-pictures.sh and `fsrl reproduce` compare it).
-    let crc = crc32fast::hash(&std::fs::read(&model_path).unwrap());
-    assert_eq!(subj["checkpoint_crc32"], format!("{crc:08x}"), "{subj}");
+    let sha: String = {
+        use sha2::Digest;
+        sha2::Sha256::digest(std::fs::read(&model_path).unwrap())
+            .iter()
+            .map(|b| format!("{b:02x}"))
+            .collect()
+    };
+    assert_eq!(subj["checkpoint_sha256"], sha, "{subj}");
     let wins = model
         .check
         .iter()
