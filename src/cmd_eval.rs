@@ -134,21 +134,12 @@ pub fn load_policy(path: &Path) -> anyhow::Result<(Model, ArtifactKind)> {
 /// such a file is the same for every payload of one length (CRC's residue), so it told the
 /// weights of two runs of one configuration apart no better than their size did.
 pub fn file_sha256(path: &Path) -> anyhow::Result<String> {
-    use std::io::Read;
+    use sha2::Digest;
     let mut f =
         std::fs::File::open(path).with_context(|| format!("cannot open {}", path.display()))?;
-    use sha2::Digest;
     let mut hasher = sha2::Sha256::new();
-    let mut buf = vec![0u8; 1 << 20];
-    loop {
-        let n = f
-            .read(&mut buf)
-            .with_context(|| format!("cannot read {}", path.display()))?;
-        if n == 0 {
-            break;
-        }
-        hasher.update(&buf[..n]);
-    }
+    std::io::copy(&mut f, &mut hasher)
+        .with_context(|| format!("cannot read {}", path.display()))?;
     Ok(hasher
         .finalize()
         .iter()
