@@ -170,8 +170,14 @@ impl Cluster {
     fn fsrl(&mut self, name: &str, ns: &str, args: &[String]) {
         let log = self.log(name);
         // The actors' debug events are the per-episode evidence (DROPPED), the learner's show
-        // what it accepted (for a failure's logs).
-        let filter = "info,zenoh=warn,actor=debug,learner=debug";
+        // what it accepted (for a failure's logs); the router's transport events show when it
+        // saw a link expire and when it closed the session (a failure to notice the learner
+        // leaving is then visible in its log).
+        let filter = if name.starts_with("router") {
+            "info,zenoh=warn,zenoh_transport=debug"
+        } else {
+            "info,zenoh=warn,actor=debug,learner=debug"
+        };
         self.procs.spawn(
             name,
             ns,

@@ -50,6 +50,10 @@ use crate::{
     TLS_ACCEPT_THROTTLE_TIME, TLS_DEFAULT_MTU, TLS_LINGER_TIMEOUT, TLS_LOCATOR_PREFIX,
 };
 
+/// fsrl patch: how long `close` waits to flush what is buffered for the peer before it shuts
+/// the connection down anyway.
+const CLOSE_FLUSH_TIMEOUT: Duration = Duration::from_secs(1);
+
 #[derive(Default, Debug, PartialEq, Eq, Hash)]
 pub struct TlsCommonName(String);
 
@@ -170,9 +174,18 @@ impl LinkUnicastTls {
 
     async fn close(&self) -> ZResult<()> {
         tracing::trace!("Closing TLS link: {}", self);
-        // Flush the TLS stream
+        // Flush the TLS stream. fsrl patch: within a bound. A peer that stopped reading (its
+        // link down) leaves the TCP send buffer full, and an unbounded flush waits for TCP to
+        // give up retransmitting (minutes), holding up the transport's deletion and with it the
+        // undeclaration of the peer's liveliness tokens.
         let mut writer = zasynclock!(self.writer);
-        let res = writer.flush().await;
+        let res = match tokio::time::timeout(CLOSE_FLUSH_TIMEOUT, writer.flush()).await {
+            Ok(res) => res,
+            Err(_) => Err(std::io::Error::new(
+                std::io::ErrorKind::TimedOut,
+                "flush on close timed out",
+            )),
+        };
         tracing::trace!("TLS link flush {}: {:?}", self, res);
         // Close the underlying TCP stream
         let res = self.shutdown_tcp();
