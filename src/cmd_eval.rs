@@ -315,7 +315,16 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
         });
     }
     for input in &inputs {
+        // The file is hashed before and after it is loaded: a file replaced in between (a
+        // training exporting its model) is refused rather than credited with other weights.
+        let sha256 = file_sha256(&input.checkpoint)?;
         let (model, kind) = load_policy(&input.checkpoint)?;
+        if file_sha256(&input.checkpoint)? != sha256 {
+            anyhow::bail!(
+                "{} changed while it was being loaded; evaluate it again once nothing writes it",
+                input.checkpoint.display()
+            );
+        }
         let method = model.method;
         let label = subject_label(input, &model, kind);
         let subject = Subject {
@@ -342,7 +351,7 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
             label,
             method: method.name().to_string(),
             checkpoint: Some(input.checkpoint.display().to_string()),
-            checkpoint_sha256: Some(file_sha256(&input.checkpoint)?),
+            checkpoint_sha256: Some(sha256),
             policy_version: model.counters.policy_version,
             run_seed: Some(model.run_seed),
             trained_setting: Some(model.setting.name().to_string()),
