@@ -431,7 +431,10 @@ impl ArmCell {
 #[derive(Serialize)]
 struct ArmTest {
     setting: String,
+    /// The metric's key (the JSON's name for it).
     metric: &'static str,
+    #[serde(skip)]
+    kind: Metric,
     a: ArmCell,
     b: ArmCell,
     /// Null below two runs in either arm or without spread in both.
@@ -452,6 +455,7 @@ fn arm_tests(a: &Group, b: &Group) -> Vec<ArmTest> {
             out.push(ArmTest {
                 setting: setting.name().into(),
                 metric: metric.key(),
+                kind: metric,
                 welch: welch(&va, &vb),
                 a: ArmCell::of(va),
                 b: ArmCell::of(vb),
@@ -491,10 +495,7 @@ fn arms_markdown(arms: [(&Group, &[PathBuf]); 2], tests: &[ArmTest]) -> String {
 |---|---|---|---|---|---|---|---|
 ";
     for t in tests {
-        let metric = TESTED
-            .into_iter()
-            .find(|m| m.key() == t.metric)
-            .expect("tested metric");
+        let metric = t.kind;
         let d = metric.digits();
         let (mut ta, mut tb) = (t.a.text(d), t.b.text(d));
         if metric == Metric::Success {
