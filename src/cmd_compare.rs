@@ -431,14 +431,17 @@ impl ArmCell {
 #[derive(Serialize)]
 struct ArmTest {
     setting: String,
-    /// The metric's key (the JSON's name for it).
-    metric: &'static str,
-    #[serde(skip)]
-    kind: Metric,
+    /// Written as its key.
+    #[serde(serialize_with = "metric_key")]
+    metric: Metric,
     a: ArmCell,
     b: ArmCell,
     /// Null below two runs in either arm or without spread in both.
     welch: Option<Welch>,
+}
+
+fn metric_key<S: serde::Serializer>(m: &Metric, s: S) -> Result<S::Ok, S::Error> {
+    s.serialize_str(m.key())
 }
 
 /// Every setting both arms have, every tested metric.
@@ -454,8 +457,7 @@ fn arm_tests(a: &Group, b: &Group) -> Vec<ArmTest> {
             let (va, vb) = (a.values(metric, setting), b.values(metric, setting));
             out.push(ArmTest {
                 setting: setting.name().into(),
-                metric: metric.key(),
-                kind: metric,
+                metric,
                 welch: welch(&va, &vb),
                 a: ArmCell::of(va),
                 b: ArmCell::of(vb),
@@ -495,7 +497,7 @@ fn arms_markdown(arms: [(&Group, &[PathBuf]); 2], tests: &[ArmTest]) -> String {
 |---|---|---|---|---|---|---|---|
 ";
     for t in tests {
-        let metric = t.kind;
+        let metric = t.metric;
         let d = metric.digits();
         let (mut ta, mut tb) = (t.a.text(d), t.b.text(d));
         if metric == Metric::Success {
@@ -514,7 +516,12 @@ fn arms_markdown(arms: [(&Group, &[PathBuf]); 2], tests: &[ArmTest]) -> String {
                 _ => "– | – | – | –".into(),
             },
         };
-        let _ = writeln!(s, "| {} | {} | {ta} | {tb} | {tail} |", t.setting, t.metric);
+        let _ = writeln!(
+            s,
+            "| {} | {} | {ta} | {tb} | {tail} |",
+            t.setting,
+            metric.key()
+        );
     }
     s
 }

@@ -140,11 +140,17 @@ pub fn file_sha256(path: &Path) -> anyhow::Result<String> {
     let mut hasher = sha2::Sha256::new();
     std::io::copy(&mut f, &mut hasher)
         .with_context(|| format!("cannot read {}", path.display()))?;
-    Ok(hasher
-        .finalize()
-        .iter()
-        .map(|b| format!("{b:02x}"))
-        .collect())
+    Ok(hex(&hasher.finalize()))
+}
+
+/// [`file_sha256`] of bytes already read.
+fn bytes_sha256(bytes: &[u8]) -> String {
+    use sha2::Digest;
+    hex(&sha2::Sha256::digest(bytes))
+}
+
+fn hex(digest: &[u8]) -> String {
+    digest.iter().map(|b| format!("{b:02x}")).collect()
 }
 
 /// A model file names its method, trained setting and seed (its file name need not); a
@@ -315,16 +321,16 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
         });
     }
     for input in &inputs {
-        // The file is hashed before and after it is loaded: a file replaced in between (a
-        // training exporting its model) is refused rather than credited with other weights.
-        let sha256 = file_sha256(&input.checkpoint)?;
-        let (model, kind) = load_policy(&input.checkpoint)?;
-        if file_sha256(&input.checkpoint)? != sha256 {
-            anyhow::bail!(
-                "{} changed while it was being loaded; evaluate it again once nothing writes it",
-                input.checkpoint.display()
-            );
-        }
+        // Read once: the weights evaluated are the bytes whose hash the report records, even
+        // when the file is replaced meanwhile (a training exporting its model).
+        let (model, kind, sha256) = {
+            let path = &input.checkpoint;
+            let bytes =
+                std::fs::read(path).with_context(|| format!("cannot read {}", path.display()))?;
+            let (model, kind) = model::policy_from_bytes(path, &bytes)
+                .with_context(|| format!("cannot load {}", path.display()))?;
+            (model, kind, bytes_sha256(&bytes))
+        };
         let method = model.method;
         let label = subject_label(input, &model, kind);
         let subject = Subject {

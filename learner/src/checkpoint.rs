@@ -384,7 +384,8 @@ pub fn load(path: &Path) -> Result<Loaded, CheckpointError> {
     decode(path, &bytes)
 }
 
-fn decode(path: &Path, bytes: &[u8]) -> Result<Loaded, CheckpointError> {
+/// [`load`] of a file's bytes already read (`path` names them in errors).
+pub(crate) fn decode(path: &Path, bytes: &[u8]) -> Result<Loaded, CheckpointError> {
     let p = || path.to_path_buf();
     let body = frame::open(bytes, MAGIC, FORMAT_VERSION).map_err(|e| match e {
         FrameError::BadMagic => CheckpointError::NotACheckpoint(p()),

@@ -484,26 +484,48 @@ pub fn sniff(path: &Path) -> Result<Option<ArtifactKind>, ModelError> {
         .take(8)
         .read_to_end(&mut head)
         .map_err(io)?;
-    Ok(if head == MAGIC {
+    Ok(kind_of(&head))
+}
+
+/// A model file or a checkpoint, by its first bytes (`None`: neither).
+fn kind_of(bytes: &[u8]) -> Option<ArtifactKind> {
+    let head = bytes.get(..8)?;
+    if head == MAGIC {
         Some(ArtifactKind::Model)
     } else if head == checkpoint::MAGIC {
         Some(ArtifactKind::Checkpoint)
     } else {
         None
-    })
+    }
+}
+
+/// [`load_policy`] of a file's bytes already read (`path` names them in errors): a caller that
+/// also hashes the file reads it once, and the weights it loads are the bytes it hashed.
+pub fn policy_from_bytes(path: &Path, bytes: &[u8]) -> Result<(Model, ArtifactKind), ModelError> {
+    match kind_of(bytes) {
+        Some(ArtifactKind::Model) => Ok((
+            Model::decode(bytes).map_err(|error| ModelError::Format {
+                path: path.to_path_buf(),
+                error,
+            })?,
+            ArtifactKind::Model,
+        )),
+        Some(ArtifactKind::Checkpoint) => Ok((
+            Model::from_checkpoint(&checkpoint::decode(path, bytes)?)?,
+            ArtifactKind::Checkpoint,
+        )),
+        None => Err(ModelError::UnknownKind(path.to_path_buf())),
+    }
 }
 
 /// The policy in a model file or a checkpoint (read whole, then reduced to the model of its
 /// online network, with an empty check), and which of the two it was.
 pub fn load_policy(path: &Path) -> Result<(Model, ArtifactKind), ModelError> {
-    match sniff(path)? {
-        Some(ArtifactKind::Model) => Ok((Model::load(path)?, ArtifactKind::Model)),
-        Some(ArtifactKind::Checkpoint) => Ok((
-            Model::from_checkpoint(&checkpoint::load(path)?)?,
-            ArtifactKind::Checkpoint,
-        )),
-        None => Err(ModelError::UnknownKind(path.to_path_buf())),
-    }
+    let bytes = std::fs::read(path).map_err(|error| ModelError::Io {
+        path: path.to_path_buf(),
+        error,
+    })?;
+    policy_from_bytes(path, &bytes)
 }
 
 #[cfg(test)]
