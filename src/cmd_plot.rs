@@ -2,7 +2,8 @@
 //! `bars` (outcome rates per setting and method, paper Fig. 5), `curves` (learning curves from
 //! metrics.jsonl, and the validation curves against RL episodes and wall-clock time, seeds of a
 //! method together), `ablation` (paper Fig. 8–9) and `episode` (a trajectory with attention
-//! weights at chosen times, paper Fig. 7, plus an animated GIF).
+//! weights at chosen times, paper Fig. 7, plus an animated GIF) and `frontier` (every validated
+//! snapshot of runs as Nav. Time against Disc., beside the paper's rows).
 
 use std::path::PathBuf;
 
@@ -34,6 +35,22 @@ pub enum PlotCommand {
     Ablation(AblationArgs),
     /// One episode: trajectory with every human's attention weight at chosen times, and a GIF.
     Episode(EpisodeArgs),
+    /// Every validated snapshot of runs as Nav. Time against Disc., beside the paper's rows: is
+    /// the paper's point among the policies the runs passed through? Writes a table too.
+    Frontier(FrontierArgs),
+}
+
+#[derive(Debug, clap::Args)]
+pub struct FrontierArgs {
+    /// Run directories of `fsrl train --single-process` or `fsrl reproduce` (their config.toml,
+    /// metrics.jsonl and validation snapshots).
+    #[arg(required = true)]
+    pub runs: Vec<PathBuf>,
+    /// Output path without extension: writes OUT.svg, OUT.png and OUT.md (the table).
+    #[arg(long, default_value = "frontier")]
+    pub out: PathBuf,
+    #[arg(long)]
+    pub title: Option<String>,
 }
 
 #[derive(Debug, clap::Args)]
@@ -120,11 +137,27 @@ pub fn run(args: PlotArgs) -> anyhow::Result<()> {
         PlotCommand::Curves(a) => curves(a)?,
         PlotCommand::Ablation(a) => ablation(a)?,
         PlotCommand::Episode(a) => episode(a)?,
+        PlotCommand::Frontier(a) => frontier(a)?,
     };
     for p in written {
         println!("written: {}", p.display());
     }
     Ok(())
+}
+
+fn frontier(a: FrontierArgs) -> anyhow::Result<Vec<PathBuf>> {
+    let runs = a
+        .runs
+        .iter()
+        .map(|r| crate::frontier::read_run(r))
+        .collect::<anyhow::Result<Vec<_>>>()?;
+    let table = crate::frontier::markdown(&runs);
+    print!("{table}");
+    let mut written = viz::save(&crate::frontier::figure(&runs, a.title), &a.out)?;
+    let md = viz::with_ext(&a.out, "md");
+    std::fs::write(&md, &table).with_context(|| format!("cannot write {}", md.display()))?;
+    written.push(md);
+    Ok(written)
 }
 
 fn clip(x: f64) -> f64 {

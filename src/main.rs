@@ -13,6 +13,7 @@ mod cmd_sim;
 mod cmd_train;
 mod cmd_watch;
 mod config;
+mod frontier;
 mod launch;
 mod picture;
 mod report;

@@ -42,6 +42,9 @@ pub struct Validation {
     pub collision: f64,
     /// Disc. on the validation episodes (`discomfort`); absent in old logs.
     pub disc: Option<f64>,
+    /// Mean Nav. Time (s) of the successful validation episodes (`nav_time_s`); absent in old
+    /// logs and without a success.
+    pub nav_time_s: Option<f64>,
 }
 
 /// The validations of a metrics log, one per RL episode count: a resumed run validates the
@@ -68,6 +71,7 @@ pub fn validations(metrics_jsonl: &str) -> Vec<Validation> {
                 success,
                 collision,
                 disc: num("discomfort"),
+                nav_time_s: num("nav_time_s"),
             },
         );
     }
@@ -82,6 +86,12 @@ pub fn best(candidates: impl IntoIterator<Item = Validation>) -> Option<Validati
     })
 }
 
+/// Whether [`Select::LowDisc`] may choose `v`: after `from_episode` RL episodes (the end of the
+/// ε decay) with validation success at least [`LOW_DISC_MIN_SUCCESS`].
+pub fn good_after(v: &Validation, from_episode: u64) -> bool {
+    v.rl_episodes >= from_episode && v.success >= LOW_DISC_MIN_SUCCESS
+}
+
 /// [`Select::LowDisc`]: among the validations after `from_episode` RL episodes with success at
 /// least [`LOW_DISC_MIN_SUCCESS`], the lowest Disc. (ties: the later); without one, [`best`].
 pub fn low_disc(
@@ -91,7 +101,7 @@ pub fn low_disc(
     let all: Vec<Validation> = candidates.into_iter().collect();
     let gentlest = all
         .iter()
-        .filter(|v| v.rl_episodes >= from_episode && v.success >= LOW_DISC_MIN_SUCCESS)
+        .filter(|v| good_after(v, from_episode))
         .filter_map(|v| v.disc.map(|d| (d, v)))
         .fold(None::<(f64, &Validation)>, |acc, (d, v)| match acc {
             Some((bd, _)) if d > bd => acc,
@@ -196,6 +206,7 @@ mod tests {
             success: s,
             collision: c,
             disc: None,
+            nav_time_s: None,
         };
         let got = best([
             v(100, 0.6, 0.2),
@@ -251,6 +262,7 @@ mod tests {
             success: s,
             collision: 1.0 - s,
             disc: Some(d),
+            nav_time_s: Some(12.0),
         };
         let runs = [
             v(1000, 0.99, 0.01), // before the decay ends: not a candidate

@@ -419,6 +419,93 @@ fn validation_curves_put_the_seeds_of_a_method_together() {
     keep(&dir.join("pics"));
 }
 
+/// `fsrl plot frontier` on two low-disc runs of one setting: every good snapshot a dot, the
+/// shipped one ringed, the paper's rows as crosses, and a table that counts the snapshots as
+/// fast and as gentle as the paper's row.
+#[test]
+fn frontier_counts_the_snapshots_that_reach_the_papers_point() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path();
+    let line = |ep: u64, success: f64, nav: f64, disc: f64| {
+        format!(
+            r#"{{"phase":"validation","episode":{ep},"success_rate":{success},"collision_rate":0.0,"timeout_rate":0.0,"discomfort":{disc},"nav_time_s":{nav},"mean_return":0.5,"wall_s":1.0}}"#
+        )
+    };
+    let run = |method: &str, lines: &[String]| {
+        let run = dir.join(format!("{method}-env1-visible-s0"));
+        std::fs::create_dir_all(run.join("checkpoints/validation")).unwrap();
+        std::fs::write(
+            run.join("config.toml"),
+            format!("[run]\nmethod = \"{method}\"\nsetting = \"env1-visible\"\n[train]\nselect = \"low-disc\"\n[train.rl]\nepsilon_decay_episodes = 100\n"),
+        )
+        .unwrap();
+        std::fs::write(run.join("metrics.jsonl"), lines.join("\n") + "\n").unwrap();
+        for ep in [0, 100, 200, 300] {
+            std::fs::write(
+                run.join(format!("checkpoints/validation/ep-{ep:06}.fsrlm")),
+                b"x",
+            )
+            .unwrap();
+        }
+        run
+    };
+    // The paper's env1-visible rows: FSRL 11.08 s / 0.06, SARL 9.85 s / 0.09.
+    let fsrl_run = run(
+        "fsrl",
+        &[
+            line(0, 1.0, 9.0, 0.0),      // before the decay: not a candidate
+            line(100, 0.97, 11.0, 0.05), // reaches FSRL's point
+            line(200, 0.99, 12.0, 0.03), // the gentlest: shipped
+            line(300, 0.94, 10.0, 0.01), // success too low
+        ],
+    );
+    let sarl_run = run(
+        "sarl",
+        &[line(100, 0.96, 10.5, 0.08), line(200, 0.98, 11.5, 0.07)],
+    );
+    let out = dir.join("pics").join("f");
+    let stdout = ok(&[
+        "plot",
+        "frontier",
+        s(&fsrl_run),
+        s(&sarl_run),
+        "--out",
+        s(&out),
+    ]);
+    assert!(
+        stdout.contains("| fsrl-env1-visible-s0 | fsrl | env1-visible | 0 | 2 | 11.00 s / 0.050 (ep 100) | 12.00 s / 0.030 (ep 200) | 12.00 s / 0.030 (ep 200) | 11.08 s / 0.06 | 1 |"),
+        "{stdout}"
+    );
+    assert!(
+        stdout.contains("| sarl-env1-visible-s0 | sarl | env1-visible | 0 | 2 |"),
+        "{stdout}"
+    );
+    assert!(
+        stdout.contains("1 of 4 snapshots in 2 runs reach"),
+        "{stdout}"
+    );
+    assert_eq!(
+        std::fs::read_to_string(dir.join("pics/f.md")).unwrap(),
+        stdout
+            .lines()
+            .take_while(|l| !l.starts_with("written:"))
+            .collect::<Vec<_>>()
+            .join("\n")
+            + "\n"
+    );
+    let src = std::fs::read_to_string(dir.join("pics/f.svg")).unwrap();
+    let v = svg(&dir.join("pics/f.svg"));
+    assert!(v.text.contains("env1-visible") && v.text.contains("Nav. Time (s)"));
+    // 4 snapshot dots and 2 rings.
+    assert_eq!(src.matches("<circle").count(), 4 + 2);
+    png(&dir.join("pics/f.png"), &v);
+
+    // Not a run directory: a clear error.
+    let e = fails(&["plot", "frontier", s(dir), "--out", s(&dir.join("g"))]);
+    assert!(e.contains("not a run directory (no config.toml"), "{e}");
+    keep(&dir.join("pics"));
+}
+
 #[test]
 fn bad_inputs_are_clear_errors() {
     let tmp = tempfile::tempdir().unwrap();

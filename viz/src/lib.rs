@@ -7,6 +7,8 @@
 //! - [`ValidationCurves`]: the validation success rate, collision rate and Disc. against RL
 //!   episodes or wall-clock minutes, the seeds of one method as a mean line and a min–max band;
 //! - [`Ablation`]: the reward ablation R_c, +R_f, +R_t, all (paper Fig. 8–9);
+//! - [`Frontier`]: every validated snapshot of runs as Nav. Time against Disc., beside the
+//!   paper's rows (is the paper's point among the policies a run passes through?);
 //! - [`Trajectory`]: an episode with the attention weight of every human at chosen times (paper
 //!   Fig. 7), and [`save_gif`], the same episode animated.
 //!
@@ -20,6 +22,7 @@ mod bars;
 mod curves;
 mod episode;
 pub mod fonts;
+mod frontier;
 pub mod metrics;
 mod style;
 
@@ -35,6 +38,7 @@ pub use curves::{
     ValidationCurves,
 };
 pub use episode::{save_gif, EpisodeTrace, HumanInfo, TraceFrame, Trajectory, GIF_HOLD_FRAMES};
+pub use frontier::{Frontier, FrontierGroup, FrontierPanel};
 
 /// Why a picture could not be made.
 #[derive(Debug, thiserror::Error)]
