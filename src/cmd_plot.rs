@@ -51,6 +51,15 @@ pub struct FrontierArgs {
     pub out: PathBuf,
     #[arg(long)]
     pub title: Option<String>,
+    /// For directories without config.toml (a metrics.jsonl alone): the method they trained.
+    #[arg(long)]
+    pub method: Option<String>,
+    /// For directories without config.toml: the setting they trained in.
+    #[arg(long)]
+    pub setting: Option<String>,
+    /// For directories without config.toml: the RL episode at which their ε decay ended.
+    #[arg(long)]
+    pub decay_end: Option<u64>,
 }
 
 #[derive(Debug, clap::Args)]
@@ -146,10 +155,15 @@ pub fn run(args: PlotArgs) -> anyhow::Result<()> {
 }
 
 fn frontier(a: FrontierArgs) -> anyhow::Result<Vec<PathBuf>> {
+    let assumed = crate::frontier::Assumed {
+        method: a.method,
+        setting: a.setting,
+        decay_end: a.decay_end,
+    };
     let runs = a
         .runs
         .iter()
-        .map(|r| crate::frontier::read_run(r))
+        .map(|r| crate::frontier::read_run(r, &assumed))
         .collect::<anyhow::Result<Vec<_>>>()?;
     let table = crate::frontier::markdown(&runs);
     print!("{table}");

@@ -56,37 +56,67 @@ pub fn point(v: &Validation) -> Option<(f64, f64)> {
     Some((v.nav_time_s?, v.disc?))
 }
 
-/// Reads a run directory: its `config.toml` (method, setting, seed, ε decay, select rule) and
-/// its `metrics.jsonl` validations.
-pub fn read_run(run: &Path) -> anyhow::Result<RunSnapshots> {
+/// What to assume of a run directory without its `config.toml` (e.g. the metrics logs committed
+/// in `docs/results/paper-schedule/`): all three must be given for such a directory.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Assumed {
+    pub method: Option<String>,
+    pub setting: Option<String>,
+    /// The end of the run's ε decay (RL episodes): snapshots before it do not count.
+    pub decay_end: Option<u64>,
+}
+
+/// Reads a run directory: its `config.toml` (method, setting, seed, ε decay, select rule), or
+/// without one what `assumed` says, and its `metrics.jsonl` validations.
+pub fn read_run(run: &Path, assumed: &Assumed) -> anyhow::Result<RunSnapshots> {
     let config_path = run.join("config.toml");
-    if !config_path.is_file() {
+    let metrics = run.join("metrics.jsonl");
+    let (method, setting, seed, decay_end, rule) = if config_path.is_file() {
+        let c = FileConfig::load(Some(&config_path))?;
+        let decay = c.train.rl.epsilon_decay_episodes;
+        (
+            c.run.method,
+            c.run.setting,
+            c.run.seed,
+            decay,
+            c.train.select,
+        )
+    } else if !metrics.is_file() {
         bail!(
-            "{}: not a run directory (no config.toml; `fsrl plot frontier` takes the run directories of `fsrl train --single-process` or `fsrl reproduce`)",
+            "{}: not a run directory (no config.toml or metrics.jsonl; `fsrl plot frontier` takes the run directories of `fsrl train --single-process` or `fsrl reproduce`)",
             run.display()
         );
-    }
-    let config = FileConfig::load(Some(&config_path))?;
-    let setting: Setting = config
-        .run
-        .setting
+    } else {
+        let (Some(method), Some(setting), Some(decay)) =
+            (&assumed.method, &assumed.setting, assumed.decay_end)
+        else {
+            bail!(
+                "{}: no config.toml beside metrics.jsonl: pass --method, --setting and --decay-end for it",
+                run.display()
+            );
+        };
+        // The seed from a trailing `-s<seed>` of the directory's name, if it has one.
+        let seed = run
+            .file_name()
+            .and_then(|n| n.to_str()?.rsplit_once("-s")?.1.parse().ok())
+            .unwrap_or(0);
+        (method.clone(), setting.clone(), seed, decay, Select::Last)
+    };
+    let setting: Setting = setting
         .parse()
-        .with_context(|| format!("{}: run.setting", config_path.display()))?;
-    let metrics = run.join("metrics.jsonl");
+        .with_context(|| format!("{}: the run's setting", run.display()))?;
     let text = std::fs::read_to_string(&metrics)
         .with_context(|| format!("cannot read {}", metrics.display()))?;
-    let all = select::validations(&text);
-    let decay_end = config.train.rl.epsilon_decay_episodes;
-    let chosen = match config.train.select {
+    let chosen = match rule {
         Select::Last => None,
         rule => select::chosen_snapshot(run, rule, decay_end)?.map(|(v, _)| v),
     };
     Ok(RunSnapshots {
         run: run.to_path_buf(),
-        method: config.run.method,
+        method,
         setting,
-        seed: config.run.seed,
-        good: all
+        seed,
+        good: select::validations(&text)
             .into_iter()
             .filter(|v| select::good_after(v, decay_end) && point(v).is_some())
             .collect(),
@@ -234,7 +264,7 @@ mod tests {
                 line(800, 0.97, 12.0, 0.03), // gentle, slow; the gentlest: low-disc ships it
             ],
         );
-        let r = read_run(&run).unwrap();
+        let r = read_run(&run, &Assumed::default()).unwrap();
         assert_eq!(r.setting.name(), "env2-invisible");
         assert_eq!(
             r.good.iter().map(|v| v.rl_episodes).collect::<Vec<_>>(),
@@ -254,9 +284,34 @@ mod tests {
     }
 
     #[test]
-    fn a_directory_without_a_config_is_refused_by_name() {
+    fn a_directory_without_a_config_needs_all_three_assumptions() {
         let dir = tempfile::tempdir().unwrap();
-        let err = read_run(dir.path()).unwrap_err().to_string();
+        let err = read_run(dir.path(), &Assumed::default())
+            .unwrap_err()
+            .to_string();
         assert!(err.contains("not a run directory"), "{err}");
+        let run = dir.path().join("fsrl-paper-s2");
+        std::fs::create_dir_all(&run).unwrap();
+        std::fs::write(
+            run.join("metrics.jsonl"),
+            [line(1000, 1.0, 11.0, 0.02), line(2000, 0.99, 12.0, 0.05)].concat(),
+        )
+        .unwrap();
+        let mut assumed = Assumed {
+            method: Some("fsrl".into()),
+            setting: Some("env1-invisible".into()),
+            decay_end: None,
+        };
+        let err = read_run(&run, &assumed).unwrap_err().to_string();
+        assert!(
+            err.contains("pass --method, --setting and --decay-end"),
+            "{err}"
+        );
+        assumed.decay_end = Some(1500);
+        let r = read_run(&run, &assumed).unwrap();
+        assert_eq!((r.seed, r.good.len(), r.chosen.clone()), (2, 1, None));
+        assert_eq!(r.paper(), Some((10.90, 0.01)));
+        assumed.setting = Some("env4".into());
+        assert!(read_run(&run, &assumed).is_err());
     }
 }

@@ -503,6 +503,27 @@ fn frontier_counts_the_snapshots_that_reach_the_papers_point() {
     // Not a run directory: a clear error.
     let e = fails(&["plot", "frontier", s(dir), "--out", s(&dir.join("g"))]);
     assert!(e.contains("not a run directory (no config.toml"), "{e}");
+    // A metrics.jsonl alone: with what to assume of it.
+    std::fs::remove_file(fsrl_run.join("config.toml")).unwrap();
+    let e = fails(&["plot", "frontier", s(&fsrl_run), "--out", s(&dir.join("g"))]);
+    assert!(
+        e.contains("pass --method, --setting and --decay-end"),
+        "{e}"
+    );
+    let stdout = ok(&[
+        "plot",
+        "frontier",
+        s(&fsrl_run),
+        "--method",
+        "fsrl",
+        "--setting",
+        "env1-visible",
+        "--decay-end",
+        "100",
+        "--out",
+        s(&dir.join("g")),
+    ]);
+    assert!(stdout.contains("| fsrl | env1-visible | 0 | 2 | 11.00 s / 0.050 (ep 100) | 12.00 s / 0.030 (ep 200) | – |"), "{stdout}");
     keep(&dir.join("pics"));
 }
 
