@@ -14,7 +14,7 @@ use policy::method::{Select, LOW_DISC_MIN_SUCCESS};
 use sim::Setting;
 
 use crate::config::FileConfig;
-use crate::report::Metric;
+use crate::report::{mean_std, welch, Metric};
 use crate::select::{self, Validation};
 
 /// One run's validated snapshots.
@@ -218,7 +218,131 @@ pub fn markdown(runs: &[RunSnapshots]) -> String {
         "\n{reach} of {total} snapshots in {} runs reach the paper's point of their method and setting.",
         runs.len()
     );
+    let common = at_common_speed(runs);
+    if !common.is_empty() {
+        s.push_str(
+            "\n## Disc. at a common Nav. Time\n\nEach run's Disc. at its setting's common Nav. Time (the median over every method's snapshots there), from the least-squares line of Disc. on Nav. Time through its snapshots (runs with at least 3): the methods compared at the same speed instead of at the points their runs shipped. Mean ± std over runs; Welch's test where a setting has two methods with two runs or more each.\n\n| setting | at Nav. Time (s) | method | runs | Disc. | slope (Disc. per s) |\n|---|---|---|---|---|---|\n",
+        );
+        let mut tests = String::new();
+        for c in &common {
+            for (method, fits) in &c.methods {
+                let at: Vec<f64> = fits.iter().map(|f| f.at(c.nav_time)).collect();
+                let slopes: Vec<f64> = fits.iter().map(|f| f.slope).collect();
+                let fmt = |xs: &[f64], digits: usize| match mean_std(xs) {
+                    Some((m, Some(sd))) => format!("{m:.digits$} ± {sd:.digits$}"),
+                    Some((m, None)) => format!("{m:.digits$}"),
+                    None => "–".into(),
+                };
+                let _ = writeln!(
+                    s,
+                    "| {} | {:.2} | {method} | {} | {} | {} |",
+                    c.setting.name(),
+                    c.nav_time,
+                    fits.len(),
+                    fmt(&at, 3),
+                    fmt(&slopes, 3)
+                );
+            }
+            if let [(a, fa), (b, fb)] = c.methods.as_slice() {
+                let at =
+                    |fits: &[LineFit]| fits.iter().map(|f| f.at(c.nav_time)).collect::<Vec<_>>();
+                if let Some(w) = welch(&at(fa), &at(fb)) {
+                    let _ = writeln!(
+                        tests,
+                        "- {}: {a} − {b} = {:+.3} at {:.2} s (Welch p = {:.2})",
+                        c.setting.name(),
+                        w.difference,
+                        c.nav_time,
+                        w.p
+                    );
+                }
+            }
+        }
+        if !tests.is_empty() {
+            s.push('\n');
+            s.push_str(&tests);
+        }
+    }
     s
+}
+
+/// A least-squares line of Disc. on Nav. Time through one run's good snapshots.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LineFit {
+    pub intercept: f64,
+    pub slope: f64,
+}
+
+impl LineFit {
+    /// The fitted Disc. at `nav_time`.
+    pub fn at(self, nav_time: f64) -> f64 {
+        self.intercept + self.slope * nav_time
+    }
+
+    /// The line through `points`; `None` below three points or when Nav. Time does not vary.
+    pub fn through(points: &[(f64, f64)]) -> Option<Self> {
+        if points.len() < 3 {
+            return None;
+        }
+        let n = points.len() as f64;
+        let mx = points.iter().map(|p| p.0).sum::<f64>() / n;
+        let my = points.iter().map(|p| p.1).sum::<f64>() / n;
+        let sxx: f64 = points.iter().map(|p| (p.0 - mx).powi(2)).sum();
+        if sxx.is_nan() || sxx <= 1e-12 {
+            return None;
+        }
+        let slope = points.iter().map(|p| (p.0 - mx) * (p.1 - my)).sum::<f64>() / sxx;
+        Some(Self {
+            intercept: my - slope * mx,
+            slope,
+        })
+    }
+}
+
+/// One setting's comparison at a common speed.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CommonSpeed {
+    pub setting: Setting,
+    /// The median Nav. Time over every good snapshot of every run in the setting.
+    pub nav_time: f64,
+    /// Per method (in name order), its runs' lines.
+    pub methods: Vec<(String, Vec<LineFit>)>,
+}
+
+/// Per setting (in [`Setting::ALL`] order), the methods' runs' Disc. lines and the common Nav.
+/// Time to read them at; settings without a fitted run are left out.
+pub fn at_common_speed(runs: &[RunSnapshots]) -> Vec<CommonSpeed> {
+    let mut by_setting: BTreeMap<usize, Vec<&RunSnapshots>> = BTreeMap::new();
+    for r in runs {
+        by_setting.entry(r.setting.index()).or_default().push(r);
+    }
+    by_setting
+        .into_iter()
+        .filter_map(|(i, rs)| {
+            let mut navs: Vec<f64> = rs
+                .iter()
+                .flat_map(|r| r.good.iter().filter_map(point).map(|p| p.0))
+                .collect();
+            navs.sort_by(f64::total_cmp);
+            let nav_time = match navs.len() {
+                0 => return None,
+                n if n % 2 == 1 => navs[n / 2],
+                n => 0.5 * (navs[n / 2 - 1] + navs[n / 2]),
+            };
+            let mut methods: BTreeMap<String, Vec<LineFit>> = BTreeMap::new();
+            for r in rs {
+                let pts: Vec<(f64, f64)> = r.good.iter().filter_map(point).collect();
+                if let Some(fit) = LineFit::through(&pts) {
+                    methods.entry(r.method.clone()).or_default().push(fit);
+                }
+            }
+            (!methods.is_empty()).then(|| CommonSpeed {
+                setting: Setting::ALL[i],
+                nav_time,
+                methods: methods.into_iter().collect(),
+            })
+        })
+        .collect()
 }
 
 #[cfg(test)]
@@ -281,6 +405,55 @@ mod tests {
         assert_eq!(fig.panels.len(), 1);
         assert_eq!(fig.panels[0].groups[0].points.len(), 3);
         assert_eq!(fig.panels[0].groups[0].chosen, [(12.0, 0.03)]);
+    }
+
+    #[test]
+    fn methods_are_compared_at_the_median_speed_of_all_their_snapshots() {
+        let fit = LineFit::through(&[(10.0, 0.10), (11.0, 0.08), (12.0, 0.06)]).unwrap();
+        assert!((fit.slope + 0.02).abs() < 1e-12 && (fit.at(11.5) - 0.07).abs() < 1e-12);
+        assert_eq!(LineFit::through(&[(10.0, 0.1), (11.0, 0.2)]), None);
+        assert_eq!(
+            LineFit::through(&[(10.0, 0.1), (10.0, 0.2), (10.0, 0.3)]),
+            None
+        );
+        let run = |method: &str, seed: u64, shift: f64| RunSnapshots {
+            run: PathBuf::from(format!("{method}-s{seed}")),
+            method: method.into(),
+            setting: "env2-visible".parse().unwrap(),
+            seed,
+            good: [10.0, 11.0, 12.0]
+                .iter()
+                .enumerate()
+                .map(|(k, &nav)| Validation {
+                    rl_episodes: 2000 + 250 * k as u64,
+                    success: 1.0,
+                    collision: 0.0,
+                    disc: Some(0.3 - 0.02 * nav + shift),
+                    nav_time_s: Some(nav + seed as f64 * 0.5),
+                })
+                .collect(),
+            chosen: None,
+        };
+        // FSRL 0.01 below SARL's line at every speed; SARL's runs are the slower ones.
+        let runs = [
+            run("fsrl", 0, -0.01),
+            run("fsrl", 1, -0.012),
+            run("sarl", 2, 0.0),
+            run("sarl", 3, 0.002),
+        ];
+        let c = at_common_speed(&runs);
+        assert_eq!(c.len(), 1);
+        // 12 snapshot times: 10, 11, 12, 10.5, 11.5, 12.5, 11, 12, 13, 11.5, 12.5, 13.5.
+        assert!((c[0].nav_time - 11.75).abs() < 1e-12, "{}", c[0].nav_time);
+        let md = markdown(&runs);
+        assert!(md.contains("| env2-visible | 11.75 | fsrl | 2 |"), "{md}");
+        assert!(md.contains("- env2-visible: fsrl − sarl = "), "{md}");
+        let (f, s) = (&c[0].methods[0].1, &c[0].methods[1].1);
+        let diff = f[0].at(11.75) - s[0].at(11.75);
+        assert!(
+            diff < -0.009,
+            "{diff}: compared at the same speed, not at each run's own"
+        );
     }
 
     #[test]
