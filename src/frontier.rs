@@ -107,16 +107,16 @@ pub fn read_run(run: &Path, assumed: &Assumed) -> anyhow::Result<RunSnapshots> {
         .with_context(|| format!("{}: the run's setting", run.display()))?;
     let text = std::fs::read_to_string(&metrics)
         .with_context(|| format!("cannot read {}", metrics.display()))?;
-    let chosen = match rule {
-        Select::Last => None,
-        rule => select::chosen_snapshot(run, rule, decay_end)?.map(|(v, _)| v),
-    };
+    let all = select::validations(&text);
+    // The rule's choice among all the validations, as when the run ended (every snapshot on
+    // disk): so a log kept without its snapshots (docs/results/frontier/logs/) still shows it.
+    let chosen = select::choose(rule, all.iter().cloned(), decay_end);
     Ok(RunSnapshots {
         run: run.to_path_buf(),
         method,
         setting,
         seed,
-        good: select::validations(&text)
+        good: all
             .into_iter()
             .filter(|v| select::good_after(v, decay_end) && point(v).is_some())
             .collect(),

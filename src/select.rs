@@ -113,6 +113,19 @@ pub fn low_disc(
     }
 }
 
+/// The validation `rule` chooses among `candidates` (`None` for [`Select::Last`]).
+pub fn choose(
+    rule: Select,
+    candidates: impl IntoIterator<Item = Validation>,
+    decay_end_episode: u64,
+) -> Option<Validation> {
+    match rule {
+        Select::Last => None,
+        Select::BestValidation => best(candidates),
+        Select::LowDisc => low_disc(candidates, decay_end_episode),
+    }
+}
+
 /// The validation `rule` chooses among a run's validations that have their snapshot on disk,
 /// with the snapshot's path; `None` for [`Select::Last`] or without a snapshot.
 pub fn chosen_snapshot(
@@ -126,11 +139,7 @@ pub fn chosen_snapshot(
     let on_disk = validations(&text)
         .into_iter()
         .filter(|v| snapshot_path(run_dir, v.rl_episodes).exists());
-    let found = match rule {
-        Select::Last => None,
-        Select::BestValidation => best(on_disk),
-        Select::LowDisc => low_disc(on_disk, decay_end_episode),
-    };
+    let found = choose(rule, on_disk, decay_end_episode);
     Ok(found.map(|v| {
         let p = snapshot_path(run_dir, v.rl_episodes);
         (v, p)
