@@ -47,6 +47,8 @@ const LEGEND_H: u32 = 34;
 const PANEL_W: u32 = 460;
 const PANEL_H: u32 = 400;
 const COLUMNS: usize = 3;
+/// Room for the title and the note line, whatever the number of panels.
+const MIN_W: u32 = 940;
 
 impl Frontier {
     /// The distinct group labels in order of first appearance: one colour each.
@@ -162,7 +164,7 @@ impl Figure for Frontier {
     fn size(&self) -> (u32, u32) {
         let (rows, cols) = self.grid();
         (
-            PANEL_W * cols as u32,
+            (PANEL_W * cols as u32).max(MIN_W),
             TITLE_H + NOTE_H + LEGEND_H + PANEL_H * rows as u32,
         )
     }
@@ -248,7 +250,10 @@ mod tests {
         assert_eq!(fig.labels(), ["sarl", "fsrl"]);
         assert_eq!(
             fig.size(),
-            (2 * PANEL_W, TITLE_H + NOTE_H + LEGEND_H + PANEL_H)
+            (
+                (2 * PANEL_W).max(MIN_W),
+                TITLE_H + NOTE_H + LEGEND_H + PANEL_H
+            )
         );
         let svg = crate::to_svg_string(&fig).unwrap();
         // 4 snapshot dots and 3 rings (one chosen per group).
