@@ -60,6 +60,9 @@ pub struct FrontierArgs {
     /// For directories without config.toml: the RL episode at which their ε decay ended.
     #[arg(long)]
     pub decay_end: Option<u64>,
+    /// The success a validation line needs to be drawn (default: the one `low-disc` needs).
+    #[arg(long, default_value_t = policy::method::LOW_DISC_MIN_SUCCESS)]
+    pub min_success: f64,
 }
 
 #[derive(Debug, clap::Args)]
@@ -155,6 +158,9 @@ pub fn run(args: PlotArgs) -> anyhow::Result<()> {
 }
 
 fn frontier(a: FrontierArgs) -> anyhow::Result<Vec<PathBuf>> {
+    if !(0.0..=1.0).contains(&a.min_success) {
+        bail!("--min-success {}: not a rate in [0, 1]", a.min_success);
+    }
     let assumed = crate::frontier::Assumed {
         method: a.method,
         setting: a.setting,
@@ -163,11 +169,14 @@ fn frontier(a: FrontierArgs) -> anyhow::Result<Vec<PathBuf>> {
     let runs = a
         .runs
         .iter()
-        .map(|r| crate::frontier::read_run(r, &assumed))
+        .map(|r| crate::frontier::read_run(r, &assumed, a.min_success))
         .collect::<anyhow::Result<Vec<_>>>()?;
-    let table = crate::frontier::markdown(&runs);
+    let table = crate::frontier::markdown(&runs, a.min_success);
     print!("{table}");
-    let mut written = viz::save(&crate::frontier::figure(&runs, a.title), &a.out)?;
+    let mut written = viz::save(
+        &crate::frontier::figure(&runs, a.title, a.min_success),
+        &a.out,
+    )?;
     let md = viz::with_ext(&a.out, "md");
     std::fs::write(&md, &table).with_context(|| format!("cannot write {}", md.display()))?;
     written.push(md);

@@ -2,7 +2,8 @@
 //! (Nav. Time, Disc.), beside the paper's row of its method and setting. Answers whether another
 //! snapshot of the same runs could have shipped the paper's point: as fast *and* as gentle
 //! (`docs/REPRODUCTION.md`, Experiment 13). Only the snapshots `low-disc` may choose from take
-//! part: after the ε decay, validation success at least [`LOW_DISC_MIN_SUCCESS`]. Validation
+//! part: after the ε decay, validation success at least
+//! [`policy::method::LOW_DISC_MIN_SUCCESS`] (`--min-success` changes it). Validation
 //! seeds only; 100 episodes a validation, so a point is uncertain by about ±0.5 s and ±0.02 Disc.
 
 use std::collections::BTreeMap;
@@ -10,7 +11,7 @@ use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context};
-use policy::method::{Select, LOW_DISC_MIN_SUCCESS};
+use policy::method::Select;
 use sim::Setting;
 
 use crate::config::FileConfig;
@@ -68,7 +69,7 @@ pub struct Assumed {
 
 /// Reads a run directory: its `config.toml` (method, setting, seed, ε decay, select rule), or
 /// without one what `assumed` says, and its `metrics.jsonl` validations.
-pub fn read_run(run: &Path, assumed: &Assumed) -> anyhow::Result<RunSnapshots> {
+pub fn read_run(run: &Path, assumed: &Assumed, min_success: f64) -> anyhow::Result<RunSnapshots> {
     let config_path = run.join("config.toml");
     let metrics = run.join("metrics.jsonl");
     let (method, setting, seed, decay_end, rule) = if config_path.is_file() {
@@ -118,14 +119,16 @@ pub fn read_run(run: &Path, assumed: &Assumed) -> anyhow::Result<RunSnapshots> {
         seed,
         good: all
             .into_iter()
-            .filter(|v| select::good_after(v, decay_end) && point(v).is_some())
+            .filter(|v| {
+                v.rl_episodes >= decay_end && v.success >= min_success && point(v).is_some()
+            })
             .collect(),
         chosen,
     })
 }
 
 /// The figure: one panel per setting (in [`Setting::ALL`] order), one group per method.
-pub fn figure(runs: &[RunSnapshots], title: Option<String>) -> viz::Frontier {
+pub fn figure(runs: &[RunSnapshots], title: Option<String>, min_success: f64) -> viz::Frontier {
     let mut by_setting: BTreeMap<usize, BTreeMap<&str, Vec<&RunSnapshots>>> = BTreeMap::new();
     for r in runs {
         by_setting
@@ -159,7 +162,7 @@ pub fn figure(runs: &[RunSnapshots], title: Option<String>) -> viz::Frontier {
     viz::Frontier {
         title: title.unwrap_or_else(|| "Validated snapshots: Nav. Time against Disc.".into()),
         note: format!(
-            "snapshots after the ε decay with validation success ≥ {LOW_DISC_MIN_SUCCESS} (100 validation episodes each); below and left of × is as fast and as gentle as the paper"
+            "snapshots after the ε decay with success ≥ {min_success} in their validation line; below and left of × is as fast and as gentle as the paper"
         ),
         panels,
     }
@@ -174,9 +177,9 @@ fn cell(v: Option<&Validation>) -> String {
 
 /// The table: per run the good snapshots, the fastest, the gentlest, the shipped one, the
 /// paper's point and how many snapshots reach it; a total line at the end.
-pub fn markdown(runs: &[RunSnapshots]) -> String {
+pub fn markdown(runs: &[RunSnapshots], min_success: f64) -> String {
     let mut s = format!(
-        "Validated snapshots (after the ε decay, validation success ≥ {LOW_DISC_MIN_SUCCESS}): Nav. Time (s) / Disc. on the validation seeds. \"Reach\": snapshots at least as fast and as gentle as the paper's row.\n\n| run | method | setting | seed | snapshots | fastest | gentlest | shipped | paper | reach |\n|---|---|---|---|---|---|---|---|---|---|\n"
+        "Validated snapshots (after the ε decay, success ≥ {min_success} in their validation line): Nav. Time (s) / Disc. as the line records them. \"Reach\": snapshots at least as fast and as gentle as the paper's row.\n\n| run | method | setting | seed | snapshots | fastest | gentlest | shipped | paper | reach |\n|---|---|---|---|---|---|---|---|---|---|\n"
     );
     let (mut total, mut reach) = (0, 0);
     for r in runs {
@@ -388,7 +391,7 @@ mod tests {
                 line(800, 0.97, 12.0, 0.03), // gentle, slow; the gentlest: low-disc ships it
             ],
         );
-        let r = read_run(&run, &Assumed::default()).unwrap();
+        let r = read_run(&run, &Assumed::default(), 0.95).unwrap();
         assert_eq!(r.setting.name(), "env2-invisible");
         assert_eq!(
             r.good.iter().map(|v| v.rl_episodes).collect::<Vec<_>>(),
@@ -398,10 +401,10 @@ mod tests {
         assert_eq!(r.paper(), Some((10.92, 0.07)));
         let reach: Vec<u64> = r.reaching_paper().iter().map(|v| v.rl_episodes).collect();
         assert_eq!(reach, [400]);
-        let md = markdown(std::slice::from_ref(&r));
+        let md = markdown(std::slice::from_ref(&r), 0.95);
         assert!(md.contains("| 10.50 s / 0.090 (ep 200) | 12.00 s / 0.030 (ep 800) | 12.00 s / 0.030 (ep 800) | 10.92 s / 0.07 | 1 |"), "{md}");
         assert!(md.contains("1 of 3 snapshots in 1 runs"), "{md}");
-        let fig = figure(&[r], None);
+        let fig = figure(&[r], None, 0.95);
         assert_eq!(fig.panels.len(), 1);
         assert_eq!(fig.panels[0].groups[0].points.len(), 3);
         assert_eq!(fig.panels[0].groups[0].chosen, [(12.0, 0.03)]);
@@ -445,7 +448,7 @@ mod tests {
         assert_eq!(c.len(), 1);
         // 12 snapshot times: 10, 11, 12, 10.5, 11.5, 12.5, 11, 12, 13, 11.5, 12.5, 13.5.
         assert!((c[0].nav_time - 11.75).abs() < 1e-12, "{}", c[0].nav_time);
-        let md = markdown(&runs);
+        let md = markdown(&runs, 0.95);
         assert!(md.contains("| env2-visible | 11.75 | fsrl | 2 |"), "{md}");
         assert!(md.contains("- env2-visible: fsrl − sarl = "), "{md}");
         let (f, s) = (&c[0].methods[0].1, &c[0].methods[1].1);
@@ -459,7 +462,7 @@ mod tests {
     #[test]
     fn a_directory_without_a_config_needs_all_three_assumptions() {
         let dir = tempfile::tempdir().unwrap();
-        let err = read_run(dir.path(), &Assumed::default())
+        let err = read_run(dir.path(), &Assumed::default(), 0.95)
             .unwrap_err()
             .to_string();
         assert!(err.contains("not a run directory"), "{err}");
@@ -475,16 +478,16 @@ mod tests {
             setting: Some("env1-invisible".into()),
             decay_end: None,
         };
-        let err = read_run(&run, &assumed).unwrap_err().to_string();
+        let err = read_run(&run, &assumed, 0.95).unwrap_err().to_string();
         assert!(
             err.contains("pass --method, --setting and --decay-end"),
             "{err}"
         );
         assumed.decay_end = Some(1500);
-        let r = read_run(&run, &assumed).unwrap();
+        let r = read_run(&run, &assumed, 0.95).unwrap();
         assert_eq!((r.seed, r.good.len(), r.chosen.clone()), (2, 1, None));
         assert_eq!(r.paper(), Some((10.90, 0.01)));
         assumed.setting = Some("env4".into());
-        assert!(read_run(&run, &assumed).is_err());
+        assert!(read_run(&run, &assumed, 0.95).is_err());
     }
 }

@@ -524,6 +524,36 @@ fn frontier_counts_the_snapshots_that_reach_the_papers_point() {
         s(&dir.join("g")),
     ]);
     assert!(stdout.contains("| fsrl | env1-visible | 0 | 2 | 11.00 s / 0.050 (ep 100) | 12.00 s / 0.030 (ep 200) | – |"), "{stdout}");
+    // --min-success 0.9 lets the snapshot after 300 episodes (success 0.94) in: the fastest.
+    let stdout = ok(&[
+        "plot",
+        "frontier",
+        s(&fsrl_run),
+        "--method",
+        "fsrl",
+        "--setting",
+        "env1-visible",
+        "--decay-end",
+        "100",
+        "--min-success",
+        "0.9",
+        "--out",
+        s(&dir.join("g")),
+    ]);
+    assert!(
+        stdout.contains("| 3 | 10.00 s / 0.010 (ep 300) |"),
+        "{stdout}"
+    );
+    let e = fails(&[
+        "plot",
+        "frontier",
+        s(&sarl_run),
+        "--min-success",
+        "NaN",
+        "--out",
+        s(&dir.join("g")),
+    ]);
+    assert!(e.contains("not a rate in [0, 1]"), "{e}");
     keep(&dir.join("pics"));
 }
 
