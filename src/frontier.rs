@@ -119,9 +119,7 @@ pub fn read_run(run: &Path, assumed: &Assumed, min_success: f64) -> anyhow::Resu
         seed,
         good: all
             .into_iter()
-            .filter(|v| {
-                v.rl_episodes >= decay_end && v.success >= min_success && point(v).is_some()
-            })
+            .filter(|v| select::good_after(v, decay_end, min_success) && point(v).is_some())
             .collect(),
         chosen,
     })

@@ -86,10 +86,11 @@ pub fn best(candidates: impl IntoIterator<Item = Validation>) -> Option<Validati
     })
 }
 
-/// Whether [`Select::LowDisc`] may choose `v`: after `from_episode` RL episodes (the end of the
-/// ε decay) with validation success at least [`LOW_DISC_MIN_SUCCESS`].
-pub fn good_after(v: &Validation, from_episode: u64) -> bool {
-    v.rl_episodes >= from_episode && v.success >= LOW_DISC_MIN_SUCCESS
+/// Whether `v` is a good validation: after `from_episode` RL episodes (the end of the ε decay)
+/// with validation success at least `min_success` ([`Select::LowDisc`] chooses among those at
+/// [`LOW_DISC_MIN_SUCCESS`]).
+pub fn good_after(v: &Validation, from_episode: u64, min_success: f64) -> bool {
+    v.rl_episodes >= from_episode && v.success >= min_success
 }
 
 /// [`Select::LowDisc`]: among the validations after `from_episode` RL episodes with success at
@@ -101,7 +102,7 @@ pub fn low_disc(
     let all: Vec<Validation> = candidates.into_iter().collect();
     let gentlest = all
         .iter()
-        .filter(|v| good_after(v, from_episode))
+        .filter(|v| good_after(v, from_episode, LOW_DISC_MIN_SUCCESS))
         .filter_map(|v| v.disc.map(|d| (d, v)))
         .fold(None::<(f64, &Validation)>, |acc, (d, v)| match acc {
             Some((bd, _)) if d > bd => acc,

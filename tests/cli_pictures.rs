@@ -510,36 +510,24 @@ fn frontier_counts_the_snapshots_that_reach_the_papers_point() {
         e.contains("pass --method, --setting and --decay-end"),
         "{e}"
     );
-    let stdout = ok(&[
-        "plot",
-        "frontier",
-        s(&fsrl_run),
-        "--method",
-        "fsrl",
-        "--setting",
-        "env1-visible",
-        "--decay-end",
-        "100",
-        "--out",
-        s(&dir.join("g")),
-    ]);
+    let g = dir.join("g");
+    let assumed = |extra: &[&str]| {
+        let mut args = vec!["plot", "frontier", s(&fsrl_run), "--out", s(&g)];
+        args.extend([
+            "--method",
+            "fsrl",
+            "--setting",
+            "env1-visible",
+            "--decay-end",
+            "100",
+        ]);
+        args.extend(extra);
+        ok(&args)
+    };
+    let stdout = assumed(&[]);
     assert!(stdout.contains("| fsrl | env1-visible | 0 | 2 | 11.00 s / 0.050 (ep 100) | 12.00 s / 0.030 (ep 200) | – |"), "{stdout}");
     // --min-success 0.9 lets the snapshot after 300 episodes (success 0.94) in: the fastest.
-    let stdout = ok(&[
-        "plot",
-        "frontier",
-        s(&fsrl_run),
-        "--method",
-        "fsrl",
-        "--setting",
-        "env1-visible",
-        "--decay-end",
-        "100",
-        "--min-success",
-        "0.9",
-        "--out",
-        s(&dir.join("g")),
-    ]);
+    let stdout = assumed(&["--min-success", "0.9"]);
     assert!(
         stdout.contains("| 3 | 10.00 s / 0.010 (ep 300) |"),
         "{stdout}"

@@ -419,15 +419,24 @@ impl Model {
 
     /// Reads a model file.
     pub fn load(path: &Path) -> Result<Self, ModelError> {
-        let bytes = std::fs::read(path).map_err(|error| ModelError::Io {
-            path: path.to_path_buf(),
-            error,
-        })?;
-        Self::decode(&bytes).map_err(|error| ModelError::Format {
+        Self::decode_file(path, &read(path)?)
+    }
+
+    /// [`Model::decode`] of a file's bytes, its errors naming `path`.
+    fn decode_file(path: &Path, bytes: &[u8]) -> Result<Self, ModelError> {
+        Self::decode(bytes).map_err(|error| ModelError::Format {
             path: path.to_path_buf(),
             error,
         })
     }
+}
+
+/// A whole file, its error naming `path`.
+fn read(path: &Path) -> Result<Vec<u8>, ModelError> {
+    std::fs::read(path).map_err(|error| ModelError::Io {
+        path: path.to_path_buf(),
+        error,
+    })
 }
 
 /// Every difference between a recorded check and a replay of it.
@@ -503,13 +512,7 @@ fn kind_of(bytes: &[u8]) -> Option<ArtifactKind> {
 /// also hashes the file reads it once, and the weights it loads are the bytes it hashed.
 pub fn policy_from_bytes(path: &Path, bytes: &[u8]) -> Result<(Model, ArtifactKind), ModelError> {
     match kind_of(bytes) {
-        Some(ArtifactKind::Model) => Ok((
-            Model::decode(bytes).map_err(|error| ModelError::Format {
-                path: path.to_path_buf(),
-                error,
-            })?,
-            ArtifactKind::Model,
-        )),
+        Some(ArtifactKind::Model) => Ok((Model::decode_file(path, bytes)?, ArtifactKind::Model)),
         Some(ArtifactKind::Checkpoint) => Ok((
             Model::from_checkpoint(&checkpoint::decode(path, bytes)?)?,
             ArtifactKind::Checkpoint,
@@ -521,11 +524,7 @@ pub fn policy_from_bytes(path: &Path, bytes: &[u8]) -> Result<(Model, ArtifactKi
 /// The policy in a model file or a checkpoint (read whole, then reduced to the model of its
 /// online network, with an empty check), and which of the two it was.
 pub fn load_policy(path: &Path) -> Result<(Model, ArtifactKind), ModelError> {
-    let bytes = std::fs::read(path).map_err(|error| ModelError::Io {
-        path: path.to_path_buf(),
-        error,
-    })?;
-    policy_from_bytes(path, &bytes)
+    policy_from_bytes(path, &read(path)?)
 }
 
 #[cfg(test)]

@@ -51,7 +51,8 @@ pub fn moving_average(points: &[(f64, f64)], window: usize) -> Vec<(f64, f64)> {
     out
 }
 
-fn bounds(series: &[Vec<(f64, f64)>]) -> Option<(f64, f64, f64, f64)> {
+/// The finite points' `(x min, x max, y min, y max)`; `None` without one.
+pub(crate) fn bounds(series: &[Vec<(f64, f64)>]) -> Option<(f64, f64, f64, f64)> {
     let mut it = series
         .iter()
         .flatten()

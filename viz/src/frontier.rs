@@ -80,13 +80,8 @@ fn ranges(panel: &FrontierPanel) -> Option<((f64, f64), (f64, f64))> {
         .iter()
         .flat_map(|g| g.points.iter().chain(&g.chosen).chain(g.paper.iter()))
         .copied()
-        .filter(finite)
         .collect();
-    let first = *all.first()?;
-    let (mut x0, mut x1, mut y0, mut y1) = (first.0, first.0, first.1, first.1);
-    for &(x, y) in &all {
-        (x0, x1, y0, y1) = (x0.min(x), x1.max(x), y0.min(y), y1.max(y));
-    }
+    let (x0, x1, y0, y1) = crate::curves::bounds(&[all])?;
     let pad = |lo: f64, hi: f64| {
         let m = if hi - lo < 1e-9 {
             0.5
