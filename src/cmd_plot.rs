@@ -5,6 +5,7 @@
 //! weights at chosen times, paper Fig. 7, plus an animated GIF) and `frontier` (every validated
 //! snapshot of runs as Nav. Time against Disc., beside the paper's rows).
 
+use std::collections::BTreeMap;
 use std::path::PathBuf;
 
 use anyhow::{bail, Context};
@@ -16,7 +17,7 @@ use viz::{Interval, OutcomeCell};
 use crate::cmd_compare::{group, load_sources, Group};
 use crate::cmd_eval::{label_of, load_policy, resolve_input};
 use crate::config::FileConfig;
-use crate::report::Metric;
+use crate::report::{Metric, SubjectReport};
 
 #[derive(Debug, clap::Args)]
 pub struct PlotArgs {
@@ -63,6 +64,11 @@ pub struct FrontierArgs {
     /// The success a validation line needs to be drawn (default: the one `low-disc` needs).
     #[arg(long, default_value_t = policy::method::LOW_DISC_MIN_SUCCESS)]
     pub min_success: f64,
+    /// Print the snapshots that would be drawn, one `RUN<TAB>RL_EPISODES` line each (the
+    /// snapshot file is RUN/checkpoints/validation/ep-<RL_EPISODES, 6 digits>.fsrlm), and
+    /// write nothing.
+    #[arg(long)]
+    pub list: bool,
 }
 
 #[derive(Debug, clap::Args)]
@@ -171,6 +177,14 @@ fn frontier(a: FrontierArgs) -> anyhow::Result<Vec<PathBuf>> {
         .iter()
         .map(|r| crate::frontier::read_run(r, &assumed, a.min_success))
         .collect::<anyhow::Result<Vec<_>>>()?;
+    if a.list {
+        for r in &runs {
+            for v in &r.good {
+                println!("{}\t{}", r.run.display(), v.rl_episodes);
+            }
+        }
+        return Ok(Vec::new());
+    }
     let table = crate::frontier::markdown(&runs, a.min_success);
     print!("{table}");
     let mut written = viz::save(
@@ -357,21 +371,8 @@ fn ablation(a: AblationArgs) -> anyhow::Result<Vec<PathBuf>> {
         ("sarl+efficiency", "+R_t"),
         ("fsrl", "all (fsrl)"),
     ];
-    // Per run: the mean over the environments it has; then mean ± std over runs.
-    let per_run = |g: &Group, metric: Metric| -> Vec<f64> {
-        g.members
-            .iter()
-            .filter_map(|m| {
-                let vals: Vec<f64> = envs
-                    .iter()
-                    .filter_map(|&s| m.setting(s).and_then(|r| metric.of(r)).map(|v| v.0))
-                    .collect();
-                crate::report::mean_std(&vals).map(|v| v.0)
-            })
-            .collect()
-    };
     let interval = |g: Option<&Group>, metric: Metric, rate: bool| -> Option<Interval> {
-        let (mean, std) = crate::report::mean_std(&per_run(g?, metric))?;
+        let (mean, std) = crate::report::mean_std(&seed_averages(&g?.members, &envs, metric))?;
         let sd = std.unwrap_or(0.0);
         let (lo, hi) = (mean - sd, mean + sd);
         Some(if rate {
@@ -401,7 +402,12 @@ fn ablation(a: AblationArgs) -> anyhow::Result<Vec<PathBuf>> {
         }),
         variants: variants
             .iter()
-            .map(|(m, label)| format!("{label} ({})", find(m).map_or("0".into(), runs_label)))
+            .map(|(m, label)| {
+                let seeds = find(m).map_or(0, |g| {
+                    seed_averages(&g.members, &envs, Metric::Success).len()
+                });
+                format!("{label} ({seeds})")
+            })
             .collect(),
         outcomes: variants
             .iter()
@@ -423,9 +429,41 @@ fn ablation(a: AblationArgs) -> anyhow::Result<Vec<PathBuf>> {
             .map(|(m, _)| interval(find(m), Metric::Disc, false))
             .collect(),
         interval_note:
-            "error bars: ± standard deviation over runs (none for a single run); (n) = runs".into(),
+            "error bars: ± standard deviation over seeds (none for one); (n) = seeds with all three envs"
+                .into(),
     };
     Ok(viz::save(&fig, &a.out)?)
+}
+
+/// A method's `metric` averaged over `envs`, one value per training seed, as the paper's ablation
+/// averages each arm over the three environments. The members of one seed are taken together: a
+/// grid of `fsrl reproduce` has one member per setting (each trained there), an evaluation of one
+/// model on all six settings a single member with every setting; a seed counts only with a result
+/// in each of `envs` (an average over fewer would not be the same quantity). Members that do not
+/// know their seed count each on their own.
+fn seed_averages(members: &[SubjectReport], envs: &[Setting], metric: Metric) -> Vec<f64> {
+    let mut by_seed: BTreeMap<(Option<u64>, usize), Vec<Vec<f64>>> = BTreeMap::new();
+    for (i, m) in members.iter().enumerate() {
+        let key = m.run_seed.map_or((None, i), |s| (Some(s), 0));
+        let per_env = by_seed
+            .entry(key)
+            .or_insert_with(|| vec![Vec::new(); envs.len()]);
+        for (vals, &s) in per_env.iter_mut().zip(envs) {
+            if let Some((v, _)) = m.setting(s).and_then(|r| metric.of(r)) {
+                vals.push(v);
+            }
+        }
+    }
+    by_seed
+        .values()
+        .filter_map(|per_env| {
+            let means = per_env
+                .iter()
+                .map(|v| crate::report::mean_std(v).map(|m| m.0))
+                .collect::<Option<Vec<f64>>>()?;
+            crate::report::mean_std(&means).map(|m| m.0)
+        })
+        .collect()
 }
 
 fn episode(a: EpisodeArgs) -> anyhow::Result<Vec<PathBuf>> {
@@ -519,4 +557,84 @@ fn episode(a: EpisodeArgs) -> anyhow::Result<Vec<PathBuf>> {
         )?);
     }
     Ok(written)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::report::SettingReport;
+
+    fn result(setting: Setting, success: f64) -> SettingReport {
+        SettingReport {
+            setting: setting.name().to_string(),
+            episodes: 100,
+            successes: (success * 100.0) as u32,
+            collisions: 0,
+            timeouts: 0,
+            success,
+            success_ci95: None,
+            collision: 0.0,
+            collision_ci95: None,
+            timeout: 0.0,
+            timeout_ci95: None,
+            nav_time_s: Some(10.0),
+            nav_time_ci95_s: None,
+            nav_time_std_s: None,
+            disc: 0.0,
+            danger_steps: 0,
+            steps: 0,
+            path_length_m: None,
+            path_length_std_m: None,
+            mean_abs_rotation_rad: 0.0,
+            mean_return: 0.0,
+            return_std: None,
+        }
+    }
+
+    fn member(seed: Option<u64>, results: &[(usize, f64)]) -> SubjectReport {
+        SubjectReport {
+            label: String::new(),
+            method: "sarl".into(),
+            checkpoint: None,
+            checkpoint_sha256: None,
+            policy_version: 0,
+            run_seed: seed,
+            trained_setting: None,
+            settings: results
+                .iter()
+                .map(|&(i, v)| result(Setting::ALL[i], v))
+                .collect(),
+        }
+    }
+
+    #[test]
+    fn the_ablation_averages_each_seed_over_the_three_environments() {
+        let envs = [Setting::ALL[0], Setting::ALL[1], Setting::ALL[2]];
+        assert!(envs.iter().all(|s| !s.robot_visible));
+        let members = [
+            // Seed 0 as a grid: one run per environment.
+            member(Some(0), &[(0, 0.9)]),
+            member(Some(0), &[(1, 0.6)]),
+            member(Some(0), &[(2, 0.3)]),
+            // Seed 1 trained in Env 1 only: not an average over the three, left out.
+            member(Some(1), &[(0, 1.0)]),
+            // A model evaluated everywhere, seed unknown: its own average (visible ignored).
+            member(None, &[(0, 0.5), (1, 0.5), (2, 0.8), (3, 0.0)]),
+        ];
+        let v = seed_averages(&members, &envs, Metric::Success);
+        assert_eq!(v.len(), 2, "{v:?}");
+        assert!(
+            (v[0] - 0.6).abs() < 1e-12 && (v[1] - 0.6).abs() < 1e-12,
+            "{v:?}"
+        );
+        // Two runs of one seed in the same environment count as their mean there.
+        let twice = [
+            member(Some(3), &[(0, 0.2), (1, 0.2), (2, 0.2)]),
+            member(Some(3), &[(2, 0.8)]),
+        ];
+        let v = seed_averages(&twice, &envs, Metric::Success);
+        assert_eq!(v.len(), 1);
+        assert!((v[0] - 0.3).abs() < 1e-12, "{v:?}");
+        assert!(seed_averages(&[], &envs, Metric::Success).is_empty());
+    }
 }

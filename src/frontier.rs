@@ -108,7 +108,13 @@ pub fn read_run(run: &Path, assumed: &Assumed, min_success: f64) -> anyhow::Resu
         .with_context(|| format!("{}: the run's setting", run.display()))?;
     let text = std::fs::read_to_string(&metrics)
         .with_context(|| format!("cannot read {}", metrics.display()))?;
-    let all = select::validations(&text);
+    let (all, skipped) = select::validations(&text);
+    if skipped > 0 {
+        eprintln!(
+            "warning: {}: {skipped} unreadable line(s) skipped",
+            metrics.display()
+        );
+    }
     // The rule's choice among all the validations, as when the run ended (every snapshot on
     // disk): so a log kept without its snapshots (docs/results/frontier/logs/) still shows it.
     let chosen = select::choose(rule, all.iter().cloned(), decay_end);

@@ -49,19 +49,26 @@ pub struct Validation {
 
 /// The validations of a metrics log, one per RL episode count: a resumed run validates the
 /// episodes after its checkpoint again, and the later line is the one of the surviving run.
-pub fn validations(metrics_jsonl: &str) -> Vec<Validation> {
+/// Also returns how many lines were skipped: not JSON (a line cut short by a crash is one), or
+/// validation lines without a finite success or collision rate. Callers say so.
+pub fn validations(metrics_jsonl: &str) -> (Vec<Validation>, usize) {
     let mut by_episode = BTreeMap::new();
-    for v in metrics_jsonl
-        .lines()
-        .filter_map(|l| serde_json::from_str::<serde_json::Value>(l).ok())
-        .filter(|v| v.get("phase").and_then(|p| p.as_str()) == Some("validation"))
-    {
+    let mut skipped = 0;
+    for l in metrics_jsonl.lines().filter(|l| !l.trim().is_empty()) {
+        let Ok(v) = serde_json::from_str::<serde_json::Value>(l) else {
+            skipped += 1;
+            continue;
+        };
+        if v.get("phase").and_then(|p| p.as_str()) != Some("validation") {
+            continue;
+        }
         let num = |k: &str| v.get(k).and_then(|x| x.as_f64()).filter(|x| x.is_finite());
         let (Some(ep), Some(success), Some(collision)) = (
             v.get("episode").and_then(|x| x.as_u64()),
             num("success_rate"),
             num("collision_rate"),
         ) else {
+            skipped += 1;
             continue;
         };
         by_episode.insert(
@@ -75,7 +82,7 @@ pub fn validations(metrics_jsonl: &str) -> Vec<Validation> {
             },
         );
     }
-    by_episode.into_values().collect()
+    (by_episode.into_values().collect(), skipped)
 }
 
 /// The best of `candidates`: highest success, then fewest collisions, then the earliest.
@@ -137,7 +144,14 @@ pub fn chosen_snapshot(
     let path = run_dir.join("metrics.jsonl");
     let text = std::fs::read_to_string(&path)
         .with_context(|| format!("cannot read {}", path.display()))?;
-    let on_disk = validations(&text)
+    let (all, skipped) = validations(&text);
+    if skipped > 0 {
+        tracing::warn!(
+            "{}: {skipped} unreadable line(s) skipped while choosing the snapshot",
+            path.display()
+        );
+    }
+    let on_disk = all
         .into_iter()
         .filter(|v| snapshot_path(run_dir, v.rl_episodes).exists());
     let found = choose(rule, on_disk, decay_end_episode);
@@ -203,7 +217,9 @@ mod tests {
             "{\"phase\":\"validation\",\"episode\":300}\n".into(),
         ]
         .concat();
-        let v = validations(&text);
+        let (v, skipped) = validations(&text);
+        // "not json" and the validation line without rates.
+        assert_eq!(skipped, 2);
         assert_eq!(v.len(), 2);
         assert_eq!(v[1].rl_episodes, 200);
         assert_eq!(v[1].success, 0.4);

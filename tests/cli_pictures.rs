@@ -524,6 +524,14 @@ fn frontier_counts_the_snapshots_that_reach_the_papers_point() {
         args.extend(extra);
         ok(&args)
     };
+    // --list: the snapshots that take part, and no picture.
+    let listed = ok(&["plot", "frontier", s(&sarl_run), "--list", "--out", s(&g)]);
+    assert_eq!(
+        listed,
+        format!("{0}\t100\n{0}\t200\n", sarl_run.display()),
+        "{listed}"
+    );
+    assert!(!g.with_extension("svg").exists() && !g.with_extension("md").exists());
     let stdout = assumed(&[]);
     assert!(stdout.contains("| fsrl | env1-visible | 0 | 2 | 11.00 s / 0.050 (ep 100) | 12.00 s / 0.030 (ep 200) | – |"), "{stdout}");
     // --min-success 0.9 lets the snapshot after 300 episodes (success 0.94) in: the fastest.

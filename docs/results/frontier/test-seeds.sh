@@ -6,7 +6,7 @@
 # Needs the runs' validation snapshots (runs/grid10/<run>/checkpoints/validation/, written by
 # `fsrl reproduce`; not committed). Which snapshots take part is decided from the committed
 # validation lines alone (docs/results/frontier/logs/: after the ε decay, validation success
-# >= 0.95, as `low-disc` and `plot frontier` do). Each snapshot is evaluated on EPISODES test
+# >= 0.95, as `low-disc` and `plot frontier` do; `fsrl plot frontier --list` names them). Each snapshot is evaluated on EPISODES test
 # seeds from 1000 (default 500); its scores are written as a validation-style line into
 # docs/results/frontier/test-<SETTING>/logs/<run>/metrics.jsonl beside the run's config.toml,
 # and `fsrl plot frontier --min-success 0` draws and compares them all (the set is fixed by the
@@ -25,19 +25,7 @@ for log in docs/results/frontier/logs/{fsrl,sarl}-"$SETTING"-s[0-9]; do
   # The run's own choice was made on validation seeds: here no rule picks among test scores.
   sed 's/^select = .*/select = "last"/' "$log/config.toml" > "$OUT/logs/$run/config.toml"
   # The snapshots that take part, from the validation lines and the run's ε decay.
-  episodes=$(python3 - "$log" <<'EOF'
-import json, sys, tomllib
-log = sys.argv[1]
-decay = tomllib.load(open(f"{log}/config.toml", "rb"))["train"]["rl"]["epsilon_decay_episodes"]
-by_episode = {}
-for line in open(f"{log}/metrics.jsonl"):
-    v = json.loads(line)
-    by_episode[v["episode"]] = v
-print(" ".join(str(e) for e, v in sorted(by_episode.items())
-               if e >= decay and v["success_rate"] >= 0.95
-               and v.get("nav_time_s") is not None and v.get("discomfort") is not None))
-EOF
-)
+  episodes=$("$FSRL" plot frontier "$log" --list | cut -f2)
   : > "$OUT/logs/$run/metrics.jsonl"
   for ep in $episodes; do
     snap=$(printf '%s/%s/checkpoints/validation/ep-%06d.fsrlm' "$RUNS" "$run" "$ep")
