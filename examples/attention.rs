@@ -3,7 +3,9 @@
 //! (of the chosen candidate) is below 0.01, the largest weight, and, in a collision, the weight
 //! the policy gave the human it hit at its last decision (`docs/REPRODUCTION.md`, Experiment 5);
 //! for timeouts, how close the robot came to its goal and how many ended farther from it than they
-//! started (a robot that retreats from the crowd).
+//! started (a robot that retreats from the crowd); and Disc. with the share of its danger steps
+//! whose nearest human (at the end of the step) stands (Experiment 14: where the foresight terms'
+//! discomfort comes from in Env 2).
 //!
 //! ```sh
 //! cargo run --release --example attention -- [--episodes 100] MODEL.fsrlm...
@@ -28,8 +30,8 @@ fn main() -> anyhow::Result<()> {
     if args.is_empty() {
         bail!("usage: attention [--episodes N] MODEL.fsrlm...");
     }
-    println!("| model | episodes | Succ. | Coll. | Timeout | humans ignored per decision | max weight | hit human's weight (mean) | hit human ignored | hits on standing | timeouts: closest to goal (m, mean) | timeouts ending farther than start |");
-    println!("|---|---|---|---|---|---|---|---|---|---|---|---|");
+    println!("| model | episodes | Succ. | Coll. | Timeout | humans ignored per decision | max weight | hit human's weight (mean) | hit human ignored | hits on standing | timeouts: closest to goal (m, mean) | timeouts ending farther than start | Disc. | danger steps at standing humans |");
+    println!("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|");
     for path in &args {
         let (model, _) =
             load_policy(path.as_ref()).with_context(|| format!("cannot load {path}"))?;
@@ -37,6 +39,7 @@ fn main() -> anyhow::Result<()> {
         let (mut outcomes, mut ignored, mut maxw, mut decisions) = ([0u32; 3], 0.0, 0.0, 0u64);
         let (mut hit_w, mut hit_ignored, mut hit_standing) = (Vec::new(), 0u32, 0u32);
         let (mut closest, mut retreats) = (Vec::new(), 0u32);
+        let (mut steps, mut danger, mut danger_standing) = (0u64, 0u64, 0u64);
         for seed in model.train.test_seed_start..model.train.test_seed_start + episodes {
             let mut env = Env::new(model.sim.clone(), model.setting, seed)?;
             let standing: Vec<bool> = env.humans().iter().map(|h| h.standing).collect();
@@ -77,15 +80,18 @@ fn main() -> anyhow::Result<()> {
                 _ => 2,
             };
             outcomes[k] += 1;
+            // frames[i + 1] is the state after step i.
+            for (step, f) in ep.steps.iter().zip(ep.frames.iter().skip(1)) {
+                steps += 1;
+                if step.eval.danger {
+                    danger += 1;
+                    danger_standing += u64::from(nearest(f).is_some_and(|i| standing[i]));
+                }
+            }
             if k == 1 && !last.is_empty() {
                 // The human hit: the nearest one (boundary distance) in the last frame.
                 let f = ep.frames.last().context("no frames")?;
-                let hit = (0..n)
-                    .min_by(|&a, &b| {
-                        let d = |i: usize| (f.humans[i] - f.robot.position).norm();
-                        d(a).total_cmp(&d(b))
-                    })
-                    .context("no humans")?;
+                let hit = nearest(f).context("no humans")?;
                 hit_w.push(last[hit] as f64);
                 hit_ignored += u32::from(last[hit] < IGNORED);
                 hit_standing += u32::from(standing[hit]);
@@ -106,15 +112,23 @@ fn main() -> anyhow::Result<()> {
         let (hits, timeouts) = (hit_w.len(), closest.len());
         let (mean_hit, mean_closest) = (mean_cell(&hit_w, 3), mean_cell(&closest, 2));
         println!(
-            "| {path} | {episodes} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {mean_hit} | {hit_ignored}/{hits} | {hit_standing}/{hits} | {mean_closest} | {retreats}/{timeouts} |",
+            "| {path} | {episodes} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {mean_hit} | {hit_ignored}/{hits} | {hit_standing}/{hits} | {mean_closest} | {retreats}/{timeouts} | {:.3} | {:.2} |",
             outcomes[0] as f64 / e,
             outcomes[1] as f64 / e,
             outcomes[2] as f64 / e,
             ignored / d,
             maxw / d,
+            danger as f64 / steps.max(1) as f64,
+            danger_standing as f64 / danger.max(1) as f64,
         );
     }
     Ok(())
+}
+
+/// The human nearest the robot (centre distance) in a frame.
+fn nearest(f: &sim::Frame) -> Option<usize> {
+    let d = |i: usize| (f.humans[i] - f.robot.position).norm();
+    (0..f.humans.len()).min_by(|&a, &b| d(a).total_cmp(&d(b)))
 }
 
 /// A table cell: the mean of `values` with `decimals` digits, or a dash when there are none.
