@@ -89,7 +89,8 @@ fn main() -> anyhow::Result<()> {
                 }
             }
             if k == 1 && !last.is_empty() {
-                // The human hit: the nearest one (boundary distance) in the last frame.
+                // The human hit: the nearest one in the last frame (centre distance; the
+                // humans share one radius, so the boundary distance orders them alike).
                 let f = ep.frames.last().context("no frames")?;
                 let hit = nearest(f).context("no humans")?;
                 hit_w.push(last[hit] as f64);
