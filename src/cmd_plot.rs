@@ -37,7 +37,8 @@ pub enum PlotCommand {
     /// One episode: trajectory with every human's attention weight at chosen times, and a GIF.
     Episode(EpisodeArgs),
     /// Every validated snapshot of runs as Nav. Time against Disc., beside the paper's rows: is
-    /// the paper's point among the policies the runs passed through? Writes a table too.
+    /// the paper's point among the policies the runs passed through? Writes a table too, with
+    /// the methods compared at a common speed and over their whole trajectories.
     Frontier(FrontierArgs),
 }
 

@@ -1,7 +1,8 @@
 //! `fsrl plot frontier`: the policies runs passed through, each validated snapshot as a point of
 //! (Nav. Time, Disc.), beside the paper's row of its method and setting. Answers whether another
 //! snapshot of the same runs could have shipped the paper's point: as fast *and* as gentle
-//! (`docs/REPRODUCTION.md`, Experiment 13). Only the snapshots `low-disc` may choose from take
+//! (`docs/REPRODUCTION.md`, Experiment 13), and how the methods compare at a common speed and
+//! over their whole trajectories, no snapshot chosen (Experiment 14). Only the snapshots `low-disc` may choose from take
 //! part: after the ε decay, validation success at least
 //! [`policy::method::LOW_DISC_MIN_SUCCESS`] (`--min-success` changes it). Validation
 //! seeds only; 100 episodes a validation, so a point is uncertain by about ±0.5 s and ±0.02 Disc.
@@ -270,6 +271,117 @@ pub fn markdown(runs: &[RunSnapshots], min_success: f64) -> String {
             s.push_str(&tests);
         }
     }
+    let whole = whole_trajectory(runs);
+    if !whole.is_empty() {
+        s.push_str(&trajectory_markdown(&whole, min_success));
+    }
+    s
+}
+
+/// One run's mean `(Nav. Time, Disc.)` over all its good snapshots: the policies it passed
+/// through, none chosen.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RunMean {
+    pub seed: u64,
+    pub snapshots: usize,
+    pub nav_time: f64,
+    pub disc: f64,
+}
+
+/// One setting's whole-trajectory comparison.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Trajectory {
+    pub setting: Setting,
+    /// Per method (in name order), its runs' means (in the order given).
+    pub methods: Vec<(String, Vec<RunMean>)>,
+}
+
+/// Per setting (in [`Setting::ALL`] order) and method, each run's mean over its good snapshots;
+/// runs without one are left out.
+pub fn whole_trajectory(runs: &[RunSnapshots]) -> Vec<Trajectory> {
+    let mut by_setting: BTreeMap<usize, BTreeMap<String, Vec<RunMean>>> = BTreeMap::new();
+    for r in runs {
+        let pts: Vec<(f64, f64)> = r.good.iter().filter_map(point).collect();
+        if pts.is_empty() {
+            continue;
+        }
+        let n = pts.len() as f64;
+        by_setting
+            .entry(r.setting.index())
+            .or_default()
+            .entry(r.method.clone())
+            .or_default()
+            .push(RunMean {
+                seed: r.seed,
+                snapshots: pts.len(),
+                nav_time: pts.iter().map(|p| p.0).sum::<f64>() / n,
+                disc: pts.iter().map(|p| p.1).sum::<f64>() / n,
+            });
+    }
+    by_setting
+        .into_iter()
+        .map(|(i, methods)| Trajectory {
+            setting: Setting::ALL[i],
+            methods: methods.into_iter().collect(),
+        })
+        .collect()
+}
+
+fn trajectory_markdown(whole: &[Trajectory], min_success: f64) -> String {
+    let mut s = format!(
+        "\n## The whole trajectory\n\nEach run's mean over all its snapshots above (after the ε decay, validation success ≥ {min_success}; `--min-success 0` takes every validation after the decay): the policies the run passed through, none chosen. Mean ± std over runs; per run Disc. in the order the runs were given; Welch's test for every pair of methods of a setting with two runs or more each.\n\n| setting | method | runs | snapshots | Nav. Time (s) | Disc. | Disc. per run (seed) |\n|---|---|---|---|---|---|---|\n"
+    );
+    let fmt = |xs: &[f64], digits: usize| match mean_std(xs) {
+        Some((m, Some(sd))) => format!("{m:.digits$} ± {sd:.digits$}"),
+        Some((m, None)) => format!("{m:.digits$}"),
+        None => "–".into(),
+    };
+    let mut tests = String::new();
+    for t in whole {
+        for (method, means) in &t.methods {
+            let navs: Vec<f64> = means.iter().map(|m| m.nav_time).collect();
+            let discs: Vec<f64> = means.iter().map(|m| m.disc).collect();
+            let per_run: Vec<String> = means
+                .iter()
+                .map(|m| format!("{:.3} ({})", m.disc, m.seed))
+                .collect();
+            let _ = writeln!(
+                s,
+                "| {} | {method} | {} | {} | {} | {} | {} |",
+                t.setting.name(),
+                means.len(),
+                means.iter().map(|m| m.snapshots).sum::<usize>(),
+                fmt(&navs, 2),
+                fmt(&discs, 3),
+                per_run.join(", ")
+            );
+        }
+        for (i, (a, ma)) in t.methods.iter().enumerate() {
+            for (b, mb) in &t.methods[i + 1..] {
+                let of =
+                    |ms: &[RunMean], f: fn(&RunMean) -> f64| ms.iter().map(f).collect::<Vec<_>>();
+                let (Some(wd), Some(wn)) = (
+                    welch(&of(ma, |m| m.disc), &of(mb, |m| m.disc)),
+                    welch(&of(ma, |m| m.nav_time), &of(mb, |m| m.nav_time)),
+                ) else {
+                    continue;
+                };
+                let _ = writeln!(
+                    tests,
+                    "- {}: {a} − {b}: Disc. {:+.3} (Welch p = {:.2}), Nav. Time {:+.2} s (p = {:.2})",
+                    t.setting.name(),
+                    wd.difference,
+                    wd.p,
+                    wn.difference,
+                    wn.p
+                );
+            }
+        }
+    }
+    if !tests.is_empty() {
+        s.push('\n');
+        s.push_str(&tests);
+    }
     s
 }
 
@@ -454,6 +566,21 @@ mod tests {
         assert!((c[0].nav_time - 11.75).abs() < 1e-12, "{}", c[0].nav_time);
         let md = markdown(&runs, 0.95);
         assert!(md.contains("| env2-visible | 11.75 | fsrl | 2 |"), "{md}");
+        // The whole trajectory: FSRL's runs average Disc. 0.3 − 0.02·11 − 0.011 = 0.069 at
+        // 11.25 s (seeds 0 and 1 shift its times by 0 and 0.5 s); SARL's 0.081 at 12.25 s.
+        let w = whole_trajectory(&runs);
+        assert_eq!(w.len(), 1);
+        let fsrl = &w[0].methods[0];
+        assert_eq!((fsrl.0.as_str(), fsrl.1.len()), ("fsrl", 2));
+        assert!(
+            (fsrl.1[0].disc - 0.070).abs() < 1e-12 && (fsrl.1[1].nav_time - 11.5).abs() < 1e-12
+        );
+        assert!(md.contains("| env2-visible | fsrl | 2 | 6 | 11.25 ± 0.35 | 0.069 ± 0.001 | 0.070 (0), 0.068 (1) |"), "{md}");
+        assert!(
+            md.contains("- env2-visible: fsrl − sarl: Disc. -0.012"),
+            "{md}"
+        );
+        assert!(md.contains("Nav. Time -1.00 s"), "{md}");
         assert!(md.contains("- env2-visible: fsrl − sarl = "), "{md}");
         let (f, s) = (&c[0].methods[0].1, &c[0].methods[1].1);
         let diff = f[0].at(11.75) - s[0].at(11.75);
