@@ -6,6 +6,7 @@
 //! snapshot of runs as Nav. Time against Disc., beside the paper's rows).
 
 use std::collections::BTreeMap;
+use std::fmt::Write as _;
 use std::path::PathBuf;
 
 use anyhow::{bail, Context};
@@ -110,7 +111,8 @@ pub struct AblationArgs {
     /// Average over Env 1–3 of this visibility: invisible (as the paper) or visible.
     #[arg(long, default_value = "invisible")]
     pub visibility: String,
-    /// Output path without extension: writes OUT.svg and OUT.png.
+    /// Output path without extension: writes OUT.svg, OUT.png and OUT.md (the numbers drawn,
+    /// with Welch's test of each arm against R_c).
     #[arg(long, default_value = "ablation")]
     pub out: PathBuf,
     #[arg(long)]
@@ -433,7 +435,87 @@ fn ablation(a: AblationArgs) -> anyhow::Result<Vec<PathBuf>> {
             "error bars: ± standard deviation over seeds (none for one); (n) = seeds with all three envs"
                 .into(),
     };
-    Ok(viz::save(&fig, &a.out)?)
+    let members = |m: &str| find(m).map_or(&[][..], |g| g.members.as_slice());
+    let table = ablation_markdown(&variants, members, &envs, &a.visibility);
+    print!("{table}");
+    let mut written = viz::save(&fig, &a.out)?;
+    let md = viz::with_ext(&a.out, "md");
+    std::fs::write(&md, &table).with_context(|| format!("cannot write {}", md.display()))?;
+    written.push(md);
+    Ok(written)
+}
+
+/// The ablation's numbers: per arm, mean ± std over its seeds' averages over `envs`, and Welch's
+/// test of each arm against the first (R_c) over those seed averages.
+fn ablation_markdown<'a>(
+    variants: &[(&str, &str)],
+    members: impl Fn(&str) -> &'a [SubjectReport],
+    envs: &[Setting],
+    visibility: &str,
+) -> String {
+    const METRICS: [Metric; 5] = [
+        Metric::Success,
+        Metric::Collision,
+        Metric::Timeout,
+        Metric::NavTime,
+        Metric::Disc,
+    ];
+    let mut s = format!(
+        "Reward ablation, {visibility}: each arm's value is the mean ± std over its training seeds of the seed's average over Env 1–3 (seeds with a result in all three; per seed in seed order in brackets below the table); p: Welch's test against R_c over the seed averages.\n\n| arm | seeds | Succ. | Coll. | Timeout | Nav. Time (s) | Disc. |\n|---|---|---|---|---|---|---|\n"
+    );
+    let base: Vec<Vec<f64>> = METRICS
+        .iter()
+        .map(|&m| seed_averages(members(variants[0].0), envs, m))
+        .collect();
+    let mut per_seed = String::new();
+    for (i, (method, label)) in variants.iter().enumerate() {
+        let values: Vec<Vec<f64>> = METRICS
+            .iter()
+            .map(|&m| seed_averages(members(method), envs, m))
+            .collect();
+        let cells: Vec<String> = METRICS
+            .iter()
+            .zip(&values)
+            .zip(&base)
+            .map(|((metric, xs), b)| {
+                let d = metric.digits();
+                let mut c = match crate::report::mean_std(xs) {
+                    Some((m, Some(sd))) => format!("{m:.d$} ± {sd:.d$}"),
+                    Some((m, None)) => format!("{m:.d$}"),
+                    None => return "–".into(),
+                };
+                if i > 0 {
+                    if let Some(w) = crate::report::welch(xs, b) {
+                        let _ = write!(c, " (p = {:.2})", w.p);
+                    }
+                }
+                c
+            })
+            .collect();
+        let _ = writeln!(
+            s,
+            "| {label} | {} | {} |",
+            values[0].len(),
+            cells.join(" | ")
+        );
+        let fmt = |k: usize| {
+            values[k]
+                .iter()
+                .map(|v| format!("{v:.prec$}", prec = METRICS[k].digits()))
+                .collect::<Vec<_>>()
+                .join(", ")
+        };
+        let _ = writeln!(
+            per_seed,
+            "- {label}: Succ. [{}], Nav. Time [{}], Disc. [{}]",
+            fmt(0),
+            fmt(3),
+            fmt(4)
+        );
+    }
+    s.push('\n');
+    s.push_str(&per_seed);
+    s
 }
 
 /// A method's `metric` averaged over `envs`, one value per training seed, as the paper's ablation
@@ -637,5 +719,45 @@ mod tests {
         assert_eq!(v.len(), 1);
         assert!((v[0] - 0.3).abs() < 1e-12, "{v:?}");
         assert!(seed_averages(&[], &envs, Metric::Success).is_empty());
+    }
+
+    #[test]
+    fn the_ablation_table_tests_each_arm_against_r_c_over_seed_averages() {
+        let envs = [Setting::ALL[0], Setting::ALL[1], Setting::ALL[2]];
+        let grid = |seed: u64, s: [f64; 3]| -> Vec<SubjectReport> {
+            (0..3).map(|i| member(Some(seed), &[(i, s[i])])).collect()
+        };
+        // R_c: seed averages 0.6 and 0.7; +R_f: 0.9 and 0.95; +R_t and fsrl: nothing.
+        let rc: Vec<SubjectReport> = [grid(0, [0.9, 0.6, 0.3]), grid(1, [0.7, 0.7, 0.7])].concat();
+        let rf: Vec<SubjectReport> = [grid(0, [0.9, 0.9, 0.9]), grid(1, [1.0, 0.9, 0.95])].concat();
+        let variants = [
+            ("sarl", "R_c"),
+            ("sarl+foresight", "+R_f"),
+            ("sarl+efficiency", "+R_t"),
+        ];
+        let md = ablation_markdown(
+            &variants,
+            |m| match m {
+                "sarl" => rc.as_slice(),
+                "sarl+foresight" => rf.as_slice(),
+                _ => &[],
+            },
+            &envs,
+            "invisible",
+        );
+        assert!(
+            md.contains("| R_c | 2 | 0.650 ± 0.071 | 0.000 ± 0.000 |"),
+            "{md}"
+        );
+        let w = crate::report::welch(&[0.9, 0.95], &[0.6, 0.7]).unwrap();
+        assert!(
+            md.contains(&format!("| +R_f | 2 | 0.925 ± 0.035 (p = {:.2}) |", w.p)),
+            "{md}"
+        );
+        assert!(md.contains("| +R_t | 0 | – | – | – | – | – |"), "{md}");
+        assert!(
+            md.contains("- +R_f: Succ. [0.900, 0.950], Nav. Time [10.00, 10.00]"),
+            "{md}"
+        );
     }
 }
