@@ -112,7 +112,7 @@ pub fn read_run(run: &Path, assumed: &Assumed, min_success: f64) -> anyhow::Resu
     let (all, skipped) = select::validations(&text);
     if skipped > 0 {
         eprintln!(
-            "warning: {}: {skipped} unreadable line(s) skipped",
+            "warning: {}: {skipped} unreadable or impossible line(s) skipped",
             metrics.display()
         );
     }

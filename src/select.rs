@@ -49,8 +49,10 @@ pub struct Validation {
 
 /// The validations of a metrics log, one per RL episode count: a resumed run validates the
 /// episodes after its checkpoint again, and the later line is the one of the surviving run.
-/// Also returns how many lines were skipped: not JSON (a line cut short by a crash is one), or
-/// validation lines without a finite success or collision rate. Callers say so.
+/// Also returns how many lines were skipped: not JSON (a line cut short by a crash is one),
+/// validation lines without a success or collision rate, or with a value no validation can have
+/// (a rate outside [0, 1], a Nav. Time not positive, anything not finite): a hand-edited or
+/// corrupted log must not ship a snapshot on a Disc. of −1. Callers say so.
 pub fn validations(metrics_jsonl: &str) -> (Vec<Validation>, usize) {
     let mut by_episode = BTreeMap::new();
     let mut skipped = 0;
@@ -62,7 +64,8 @@ pub fn validations(metrics_jsonl: &str) -> (Vec<Validation>, usize) {
         if v.get("phase").and_then(|p| p.as_str()) != Some("validation") {
             continue;
         }
-        let num = |k: &str| v.get(k).and_then(|x| x.as_f64()).filter(|x| x.is_finite());
+        let num = |k: &str| v.get(k).and_then(|x| x.as_f64());
+        let rate = |x: f64| (0.0..=1.0).contains(&x);
         let (Some(ep), Some(success), Some(collision)) = (
             v.get("episode").and_then(|x| x.as_u64()),
             num("success_rate"),
@@ -71,14 +74,23 @@ pub fn validations(metrics_jsonl: &str) -> (Vec<Validation>, usize) {
             skipped += 1;
             continue;
         };
+        let (disc, nav_time_s) = (num("discomfort"), num("nav_time_s"));
+        let valid = rate(success)
+            && rate(collision)
+            && disc.is_none_or(rate)
+            && nav_time_s.is_none_or(|t| t.is_finite() && t > 0.0);
+        if !valid {
+            skipped += 1;
+            continue;
+        }
         by_episode.insert(
             ep,
             Validation {
                 rl_episodes: ep,
                 success,
                 collision,
-                disc: num("discomfort"),
-                nav_time_s: num("nav_time_s"),
+                disc,
+                nav_time_s,
             },
         );
     }
@@ -147,7 +159,7 @@ pub fn chosen_snapshot(
     let (all, skipped) = validations(&text);
     if skipped > 0 {
         tracing::warn!(
-            "{}: {skipped} unreadable line(s) skipped while choosing the snapshot",
+            "{}: {skipped} unreadable or impossible line(s) skipped while choosing the snapshot",
             path.display()
         );
     }
@@ -215,11 +227,17 @@ mod tests {
             line(200, 0.4, 0.3),
             "not json\n".into(),
             "{\"phase\":\"validation\",\"episode\":300}\n".into(),
+            // Values no validation has: each line skipped, none replaces the one at 200.
+            line(200, 1.5, 0.0),
+            line(200, 0.9, -0.1),
+            "{\"phase\":\"validation\",\"episode\":200,\"success_rate\":1.0,\"collision_rate\":0.0,\"discomfort\":-1.0}\n".into(),
+            "{\"phase\":\"validation\",\"episode\":200,\"success_rate\":1.0,\"collision_rate\":0.0,\"nav_time_s\":0.0}\n".into(),
+            "{\"phase\":\"validation\",\"episode\":200,\"success_rate\":1.0,\"collision_rate\":0.0,\"nav_time_s\":1e400}\n".into(),
         ]
         .concat();
         let (v, skipped) = validations(&text);
-        // "not json" and the validation line without rates.
-        assert_eq!(skipped, 2);
+        // "not json", the validation line without rates and the five impossible ones.
+        assert_eq!(skipped, 7);
         assert_eq!(v.len(), 2);
         assert_eq!(v[1].rl_episodes, 200);
         assert_eq!(v[1].success, 0.4);
