@@ -55,7 +55,24 @@ fn read_eval(path: &Path) -> anyhow::Result<EvalReport> {
             r.kind
         );
     }
+    for subject in &r.subjects {
+        check_subject(path, subject)?;
+    }
     Ok(r)
+}
+
+/// Refuses a subject with a setting no evaluation can have written ([`SettingReport::check`]).
+fn check_subject(path: &Path, subject: &SubjectReport) -> anyhow::Result<()> {
+    for s in &subject.settings {
+        if let Err(e) = s.check() {
+            bail!(
+                "{}: {}: {e}; not a report this build can average",
+                path.display(),
+                subject.label
+            );
+        }
+    }
+    Ok(())
 }
 
 /// Reads every source; see the module documentation.
@@ -82,20 +99,20 @@ pub fn load_sources(paths: &[PathBuf]) -> anyhow::Result<Vec<Sourced>> {
                     path.display(),
                     path.display()
                 );
-                out.push(Sourced {
-                    subject: SubjectReport {
-                        label,
-                        method: r.method,
-                        checkpoint: Some(path.join("checkpoints").join("latest.ckpt"))
-                            .filter(|c| c.exists())
-                            .map(|c| c.display().to_string()),
-                        checkpoint_sha256: None,
-                        policy_version: r.policy_version,
-                        run_seed: cfg.as_ref().map(|c| c.run.seed),
-                        trained_setting: cfg.map(|c| c.run.setting),
-                        settings: r.settings,
-                    },
-                });
+                let subject = SubjectReport {
+                    label,
+                    method: r.method,
+                    checkpoint: Some(path.join("checkpoints").join("latest.ckpt"))
+                        .filter(|c| c.exists())
+                        .map(|c| c.display().to_string()),
+                    checkpoint_sha256: None,
+                    policy_version: r.policy_version,
+                    run_seed: cfg.as_ref().map(|c| c.run.seed),
+                    trained_setting: cfg.map(|c| c.run.setting),
+                    settings: r.settings,
+                };
+                check_subject(&train, &subject)?;
+                out.push(Sourced { subject });
             } else {
                 bail!(
                     "{}: neither eval/eval.json nor report.json (run `fsrl eval {}` first)",

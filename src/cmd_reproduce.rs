@@ -302,6 +302,8 @@ pub fn eval_is_current(
         && settings
             .iter()
             .all(|&s| report.subjects[0].setting(s).is_some())
+        // A report with a value no evaluation writes (edited, or corrupted) is done again.
+        && report.subjects[0].settings.iter().all(|r| r.check().is_ok())
 }
 
 /// One run and what it still needs.
@@ -961,7 +963,17 @@ mod tests {
             trained_setting: None,
             settings: settings
                 .iter()
-                .map(|s| crate::report::SettingReport::new(s, &sim::Aggregate::default()))
+                .map(|s| {
+                    let all_reached = sim::Aggregate {
+                        episodes,
+                        successes: episodes,
+                        success_time_s: 12.0 * f64::from(episodes),
+                        success_path_m: 10.0 * f64::from(episodes),
+                        steps: 48 * u64::from(episodes),
+                        ..sim::Aggregate::default()
+                    };
+                    crate::report::SettingReport::new(s, &all_reached)
+                })
                 .collect(),
         };
         serde_json::to_string(&EvalReport {
@@ -1019,6 +1031,14 @@ mod tests {
         assert!(
             !Planned::new(cell, &layout, &file, 500).complete(),
             "another setting"
+        );
+        let mut hostile: serde_json::Value =
+            serde_json::from_str(&eval_json(&["env2-visible"], 500)).unwrap();
+        hostile["subjects"][0]["settings"][0]["disc"] = serde_json::json!(-1.0);
+        std::fs::write(&json, hostile.to_string()).unwrap();
+        assert!(
+            !Planned::new(cell, &layout, &file, 500).complete(),
+            "a Disc. of -1: evaluated again"
         );
         std::fs::write(&json, eval_json(&["env2-visible"], 500)).unwrap();
         touch(&json, 80);

@@ -163,6 +163,77 @@ pub struct SettingReport {
 }
 
 impl SettingReport {
+    /// What a report read from a file must hold before anything averages it: a known setting,
+    /// episodes, rates in [0, 1] that add up to one (and match the counts where the counts are
+    /// recorded), Disc. a fraction, a positive Nav. Time, finite values. A report edited by
+    /// hand or cut by a crash is refused with the field that is wrong, not averaged in.
+    pub fn check(&self) -> Result<(), String> {
+        let s = &self.setting;
+        s.parse::<Setting>()
+            .map_err(|e| format!("setting {s:?}: {e}"))?;
+        if self.episodes == 0 {
+            return Err(format!("{s}: no episodes"));
+        }
+        for (name, v) in [
+            ("success", self.success),
+            ("collision", self.collision),
+            ("timeout", self.timeout),
+            ("disc", self.disc),
+        ] {
+            if !(0.0..=1.0).contains(&v) {
+                return Err(format!("{s}: {name} {v} is not a fraction in [0, 1]"));
+            }
+        }
+        let sum = self.success + self.collision + self.timeout;
+        if (sum - 1.0).abs() > 1e-6 {
+            return Err(format!(
+                "{s}: success + collision + timeout = {sum}, not 1 (every episode ends one way)"
+            ));
+        }
+        let counted =
+            u64::from(self.successes) + u64::from(self.collisions) + u64::from(self.timeouts);
+        if counted > 0 {
+            let n = f64::from(self.episodes);
+            if counted != u64::from(self.episodes)
+                || (f64::from(self.successes) / n - self.success).abs() > 1e-9
+            {
+                return Err(format!(
+                    "{s}: counts {}/{}/{} of {} episodes do not give the rates {}/{}/{}",
+                    self.successes,
+                    self.collisions,
+                    self.timeouts,
+                    self.episodes,
+                    self.success,
+                    self.collision,
+                    self.timeout
+                ));
+            }
+        }
+        if self.danger_steps > self.steps {
+            return Err(format!(
+                "{s}: {} danger steps of {} steps",
+                self.danger_steps, self.steps
+            ));
+        }
+        for (name, v) in [
+            ("nav_time_s", self.nav_time_s),
+            ("path_length_m", self.path_length_m),
+        ] {
+            if let Some(v) = v.filter(|v| !(v.is_finite() && *v > 0.0)) {
+                return Err(format!("{s}: {name} {v} is not a positive time or length"));
+            }
+        }
+        let rotation_ok =
+            self.mean_abs_rotation_rad.is_finite() && self.mean_abs_rotation_rad >= 0.0;
+        if !(rotation_ok && self.mean_return.is_finite()) {
+            return Err(format!(
+                "{s}: mean_abs_rotation_rad {} / mean_return {} not finite",
+                self.mean_abs_rotation_rad, self.mean_return
+            ));
+        }
+        Ok(())
+    }
+
     /// From an aggregate alone: rates with Wilson intervals, no nav-time interval.
     pub fn new(setting: &str, a: &Aggregate) -> Self {
         Self {
@@ -680,6 +751,62 @@ mod tests {
         // One value, or no spread at all: no test.
         assert!(welch(&[1.0], &[1.0, 2.0]).is_none());
         assert!(welch(&[1.0, 1.0], &[2.0, 2.0]).is_none());
+    }
+
+    #[test]
+    fn a_report_with_a_value_no_evaluation_writes_is_refused_by_field() {
+        let a = Aggregate {
+            episodes: 10,
+            successes: 8,
+            collisions: 1,
+            timeouts: 1,
+            success_time_s: 80.0,
+            success_path_m: 70.0,
+            danger_steps: 5,
+            steps: 400,
+            timeout_steps: 100,
+            abs_rotation_rad: 20.0,
+            return_sum: 5.0,
+        };
+        let good = SettingReport::new("env2-visible", &a);
+        assert_eq!(good.check(), Ok(()));
+        // Counts absent (a report from before they were recorded): the rates alone are checked.
+        let old = SettingReport {
+            successes: 0,
+            collisions: 0,
+            timeouts: 0,
+            ..good.clone()
+        };
+        assert_eq!(old.check(), Ok(()));
+        let refused = |f: fn(&mut SettingReport), field: &str| {
+            let mut r = good.clone();
+            f(&mut r);
+            let e = r.check().unwrap_err();
+            assert!(e.contains(field), "{field}: {e}");
+        };
+        refused(|r| r.setting = "env4-visible".into(), "setting");
+        refused(|r| r.episodes = 0, "no episodes");
+        refused(|r| r.success = 1.5, "success 1.5");
+        refused(|r| r.disc = -0.1, "disc");
+        refused(|r| r.timeout = f64::NAN, "timeout");
+        refused(
+            |r| {
+                r.success = 0.9;
+                r.collision = 0.1;
+            },
+            "not 1",
+        );
+        refused(
+            |r| {
+                r.success = 0.7;
+                r.collision = 0.2;
+            },
+            "counts 8/1/1",
+        );
+        refused(|r| r.danger_steps = 401, "danger steps");
+        refused(|r| r.nav_time_s = Some(-1.0), "nav_time_s");
+        refused(|r| r.path_length_m = Some(f64::INFINITY), "path_length_m");
+        refused(|r| r.mean_return = f64::NAN, "mean_return");
     }
 
     #[test]

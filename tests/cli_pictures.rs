@@ -595,6 +595,69 @@ fn bad_inputs_are_clear_errors() {
     assert!(e.contains("or pass --orca"), "{e}");
 }
 
+/// Well-formed files with values no run writes: a report with a success of 1.5 is refused by
+/// every reader (compare, the pictures) naming the field; a validation line with a Disc. of −1
+/// is skipped with a warning, so it is neither drawn nor the gentlest.
+#[test]
+fn reports_and_logs_with_impossible_values_are_refused_or_skipped() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path();
+    let good = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("docs/results/paper-schedule/fsrl-4000x25-env1-invisible-s0.json");
+    let mut report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&good).unwrap()).unwrap();
+    report["subjects"][0]["settings"][0]["success"] = serde_json::json!(1.5);
+    let hostile = dir.join("hostile.json");
+    std::fs::write(&hostile, report.to_string()).unwrap();
+    for args in [
+        vec!["compare", s(&hostile), "--out", s(&dir.join("c"))],
+        vec!["plot", "bars", s(&hostile), "--out", s(&dir.join("b"))],
+        vec!["plot", "ablation", s(&hostile), "--out", s(&dir.join("a"))],
+    ] {
+        let e = fails(&args);
+        assert!(
+            e.contains("hostile.json") && e.contains("success 1.5 is not a fraction in [0, 1]"),
+            "{args:?}: {e}"
+        );
+    }
+    assert!(!dir.join("b.svg").exists() && !dir.join("c").exists());
+
+    let run = dir.join("fsrl-env1-invisible-s0");
+    std::fs::create_dir_all(&run).unwrap();
+    std::fs::write(
+        run.join("metrics.jsonl"),
+        [
+            validation_line(2000, 0.97, 100.0) + "\n",
+            "{\"phase\":\"validation\",\"episode\":2250,\"success_rate\":1.0,\"collision_rate\":0.0,\"timeout_rate\":0.0,\"discomfort\":-1.0,\"nav_time_s\":11.0}\n".into(),
+        ]
+        .concat(),
+    )
+    .unwrap();
+    let o = fsrl(&[
+        "plot",
+        "frontier",
+        s(&run),
+        "--method",
+        "fsrl",
+        "--setting",
+        "env1-invisible",
+        "--decay-end",
+        "0",
+        "--list",
+    ]);
+    let (out, err) = (
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr),
+    );
+    assert!(o.status.success(), "{err}");
+    assert!(
+        err.contains("1 unreadable or impossible line(s) skipped"),
+        "{err}"
+    );
+    let listed: Vec<&str> = out.lines().filter_map(|l| l.split('\t').nth(1)).collect();
+    assert_eq!(listed, ["2000"], "{out}");
+}
+
 /// `fsrl compare A... --vs B...` on Experiment 9's committed reports: per-run values, the
 /// pooled counts and Welch's test agree with SciPy on the same numbers; an arm of two methods
 /// is refused.
