@@ -288,6 +288,12 @@ fn curves(a: CurvesArgs) -> anyhow::Result<Vec<PathBuf>> {
             path.clone()
         };
         let metrics = viz::metrics::read_metrics(&file)?;
+        if metrics.torn_last_line {
+            eprintln!(
+                "warning: {}: the last line is cut short (the run stopped while writing it); left out",
+                file.display()
+            );
+        }
         let dir = if path.is_dir() {
             path.clone()
         } else {

@@ -375,6 +375,10 @@ fn validation_curves_put_the_seeds_of_a_method_together() {
         ],
     ));
     runs.push(write("old-run", &[rl_line(0, 1.0), rl_line(1, 2.0)]));
+    // Stopped while appending a line: the line is left out with a warning, the log is drawn.
+    let old_log = runs[3].join("metrics.jsonl");
+    let whole = std::fs::read_to_string(&old_log).unwrap();
+    std::fs::write(&old_log, whole + "{\"phase\":\"rl\",\"epis").unwrap();
     let out = dir.join("pics").join("c");
     let mut args = vec!["plot", "curves"];
     args.extend(runs.iter().map(|r| s(r)));
@@ -408,6 +412,10 @@ fn validation_curves_put_the_seeds_of_a_method_together() {
         assert!(v.wide_polylines >= 2 * 3, "{stem}: {}", v.wide_polylines);
         png(&dir.join("pics").join(format!("{stem}.png")), &v);
     }
+    assert!(
+        stderr.contains("old-run/metrics.jsonl: the last line is cut short"),
+        "{stderr}"
+    );
     let all = svg(&dir.join("pics").join("c.svg"));
     assert!(all.text.contains("old-run") && all.text.contains("fsrl-env1-invisible-s1"));
 

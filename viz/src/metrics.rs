@@ -80,6 +80,9 @@ pub struct Metrics {
     pub imitation: Vec<ImitationPoint>,
     pub rl: Vec<RlPoint>,
     pub validation: Vec<ValidationPoint>,
+    /// The log's last line was cut short (not JSON, no newline after it: a run stopped while
+    /// writing it) and was left out; readers say so.
+    pub torn_last_line: bool,
 }
 
 /// Keeps the last of the points with the same key, sorted by key.
@@ -105,13 +108,22 @@ pub fn parse_metrics(text: &str, path: &Path) -> Result<Metrics, VizError> {
         reason,
     };
     let mut out = Metrics::default();
+    let lines = text.lines().count();
     for (i, raw) in text.lines().enumerate() {
         let line = i + 1;
         if raw.trim().is_empty() {
             continue;
         }
-        let value: serde_json::Value =
-            serde_json::from_str(raw).map_err(|e| err(line, format!("not JSON: {e}")))?;
+        let value: serde_json::Value = match serde_json::from_str(raw) {
+            Ok(v) => v,
+            // A run killed while appending leaves its last line without the newline: that
+            // line is lost, the log before it is whole.
+            Err(_) if line == lines && !text.ends_with('\n') => {
+                out.torn_last_line = true;
+                continue;
+            }
+            Err(e) => return Err(err(line, format!("not JSON: {e}"))),
+        };
         let phase = value
             .get("phase")
             .ok_or_else(|| err(line, "no \"phase\" field".into()))?
@@ -254,5 +266,18 @@ mod tests {
         assert!(e.to_string().starts_with("m.jsonl:1: bad rl line"), "{e}");
         let e = parse_metrics("{\"epoch\":1}", Path::new("m.jsonl")).unwrap_err();
         assert!(e.to_string().contains("no \"phase\""), "{e}");
+    }
+
+    #[test]
+    fn a_last_line_cut_by_a_crash_is_left_out_and_flagged() {
+        let whole = "{\"phase\":\"imitation\",\"epoch\":0,\"loss\":0.5}\n";
+        let m = parse_metrics(whole, Path::new("m.jsonl")).unwrap();
+        assert!(!m.torn_last_line);
+        let torn = format!("{whole}{{\"phase\":\"rl\",\"epis");
+        let m = parse_metrics(&torn, Path::new("m.jsonl")).unwrap();
+        assert!(m.torn_last_line && m.imitation.len() == 1 && m.rl.is_empty());
+        // Ended by a newline, the same line was written whole: malformed, not torn.
+        let e = parse_metrics(&format!("{torn}\n"), Path::new("m.jsonl")).unwrap_err();
+        assert!(e.to_string().starts_with("m.jsonl:2: not JSON"), "{e}");
     }
 }

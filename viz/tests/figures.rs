@@ -163,6 +163,7 @@ fn metrics(n: u64, offset: f64) -> Metrics {
                 }
             })
             .collect(),
+        torn_last_line: false,
     }
 }
 
