@@ -484,12 +484,7 @@ fn ablation_markdown<'a>(
             .zip(&values)
             .zip(&base)
             .map(|((metric, xs), b)| {
-                let d = metric.digits();
-                let mut c = match crate::report::mean_std(xs) {
-                    Some((m, Some(sd))) => format!("{m:.d$} ± {sd:.d$}"),
-                    Some((m, None)) => format!("{m:.d$}"),
-                    None => return "–".into(),
-                };
+                let mut c = crate::report::mean_std_cell(xs, metric.digits());
                 if i > 0 {
                     if let Some(w) = crate::report::welch(xs, b) {
                         let _ = write!(c, " (p = {:.2})", w.p);

@@ -16,7 +16,7 @@ use policy::method::Select;
 use sim::Setting;
 
 use crate::config::FileConfig;
-use crate::report::{mean_std, welch, Metric};
+use crate::report::{mean_std_cell, welch, Metric};
 use crate::select::{self, Validation};
 
 /// One run's validated snapshots.
@@ -236,19 +236,14 @@ pub fn markdown(runs: &[RunSnapshots], min_success: f64) -> String {
             for (method, fits) in &c.methods {
                 let at: Vec<f64> = fits.iter().map(|f| f.at(c.nav_time)).collect();
                 let slopes: Vec<f64> = fits.iter().map(|f| f.slope).collect();
-                let fmt = |xs: &[f64], digits: usize| match mean_std(xs) {
-                    Some((m, Some(sd))) => format!("{m:.digits$} ± {sd:.digits$}"),
-                    Some((m, None)) => format!("{m:.digits$}"),
-                    None => "–".into(),
-                };
                 let _ = writeln!(
                     s,
                     "| {} | {:.2} | {method} | {} | {} | {} |",
                     c.setting.name(),
                     c.nav_time,
                     fits.len(),
-                    fmt(&at, 3),
-                    fmt(&slopes, 3)
+                    mean_std_cell(&at, 3),
+                    mean_std_cell(&slopes, 3)
                 );
             }
             if let [(a, fa), (b, fb)] = c.methods.as_slice() {
@@ -331,11 +326,6 @@ fn trajectory_markdown(whole: &[Trajectory], min_success: f64) -> String {
     let mut s = format!(
         "\n## The whole trajectory\n\nEach run's mean over all its snapshots above (after the ε decay, validation success ≥ {min_success}; `--min-success 0` takes every validation after the decay): the policies the run passed through, none chosen. Mean ± std over runs; per run Disc. in the order the runs were given; Welch's test for every pair of methods of a setting with two runs or more each.\n\n| setting | method | runs | snapshots | Nav. Time (s) | Disc. | Disc. per run (seed) |\n|---|---|---|---|---|---|---|\n"
     );
-    let fmt = |xs: &[f64], digits: usize| match mean_std(xs) {
-        Some((m, Some(sd))) => format!("{m:.digits$} ± {sd:.digits$}"),
-        Some((m, None)) => format!("{m:.digits$}"),
-        None => "–".into(),
-    };
     let mut tests = String::new();
     for t in whole {
         for (method, means) in &t.methods {
@@ -351,8 +341,8 @@ fn trajectory_markdown(whole: &[Trajectory], min_success: f64) -> String {
                 t.setting.name(),
                 means.len(),
                 means.iter().map(|m| m.snapshots).sum::<usize>(),
-                fmt(&navs, 2),
-                fmt(&discs, 3),
+                mean_std_cell(&navs, 2),
+                mean_std_cell(&discs, 3),
                 per_run.join(", ")
             );
         }

@@ -86,6 +86,16 @@ pub fn welch(a: &[f64], b: &[f64]) -> Option<Welch> {
     })
 }
 
+/// `xs` as a table cell: "mean ± std" with `digits` decimals, the mean alone for one value,
+/// "–" for none.
+pub fn mean_std_cell(xs: &[f64], digits: usize) -> String {
+    match mean_std(xs) {
+        Some((m, Some(sd))) => format!("{m:.digits$} ± {sd:.digits$}"),
+        Some((m, None)) => format!("{m:.digits$}"),
+        None => "–".into(),
+    }
+}
+
 /// Mean, sample standard deviation (`None` below two values) of `xs`.
 pub fn mean_std(xs: &[f64]) -> Option<(f64, Option<f64>)> {
     if xs.is_empty() {
