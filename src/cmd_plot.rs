@@ -71,6 +71,18 @@ pub struct FrontierArgs {
     /// write nothing.
     #[arg(long)]
     pub list: bool,
+    /// Print one snapshot per run and write nothing: `common-speed` takes the gentlest good
+    /// snapshot no slower than the median validation Nav. Time of all runs given in its setting
+    /// (docs/REPRODUCTION.md, Experiment 15). One `RUN<TAB>RL_EPISODES<TAB>T*<TAB>HOW` line a
+    /// run; RL_EPISODES is `last` where the run ships its last weights.
+    #[arg(long, value_enum, conflicts_with = "list")]
+    pub pick: Option<Pick>,
+}
+
+/// Rules of `fsrl plot frontier --pick`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum Pick {
+    CommonSpeed,
 }
 
 #[derive(Debug, clap::Args)]
@@ -185,6 +197,20 @@ fn frontier(a: FrontierArgs) -> anyhow::Result<Vec<PathBuf>> {
             for v in &r.good {
                 println!("{}\t{}", r.run.display(), v.rl_episodes);
             }
+        }
+        return Ok(Vec::new());
+    }
+    if let Some(Pick::CommonSpeed) = a.pick {
+        for p in crate::frontier::common_speed_picks(&runs) {
+            println!(
+                "{}\t{}\t{}\t{}",
+                p.run.run.display(),
+                p.pick
+                    .map_or_else(|| "last".to_string(), |v| v.rl_episodes.to_string()),
+                p.nav_time
+                    .map_or_else(|| "-".to_string(), |t| format!("{t:.3}")),
+                p.how.name()
+            );
         }
         return Ok(Vec::new());
     }

@@ -2,7 +2,8 @@
 //! (Nav. Time, Disc.), beside the paper's row of its method and setting. Answers whether another
 //! snapshot of the same runs could have shipped the paper's point: as fast *and* as gentle
 //! (`docs/REPRODUCTION.md`, Experiment 13), and how the methods compare at a common speed and
-//! over their whole trajectories, no snapshot chosen (Experiment 14). Only the snapshots `low-disc` may choose from take
+//! over their whole trajectories, no snapshot chosen (Experiment 14), and which snapshot of each
+//! run is the gentlest at a speed common to all methods (`--pick common-speed`, Experiment 15). Only the snapshots `low-disc` may choose from take
 //! part: after the ε decay, validation success at least
 //! [`policy::method::LOW_DISC_MIN_SUCCESS`] (`--min-success` changes it). Validation
 //! seeds only; 100 episodes a validation, so a point is uncertain by about ±0.5 s and ±0.02 Disc.
@@ -408,6 +409,104 @@ impl LineFit {
     }
 }
 
+/// The median Nav. Time over every good snapshot of `runs`: the common speed of a setting.
+fn median_nav_time<'a>(runs: impl IntoIterator<Item = &'a RunSnapshots>) -> Option<f64> {
+    let mut navs: Vec<f64> = runs
+        .into_iter()
+        .flat_map(|r| r.good.iter().filter_map(point).map(|p| p.0))
+        .collect();
+    navs.sort_by(f64::total_cmp);
+    match navs.len() {
+        0 => None,
+        n if n % 2 == 1 => Some(navs[n / 2]),
+        n => Some(0.5 * (navs[n / 2 - 1] + navs[n / 2])),
+    }
+}
+
+/// How [`common_speed_picks`] chose a run's snapshot.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum PickHow {
+    /// The gentlest good snapshot at or below the common speed.
+    Gentlest,
+    /// No good snapshot at or below it: the fastest good one.
+    Fastest,
+    /// No good snapshot at all: what the run's own `train.select` ships (`None`: its last
+    /// weights).
+    OwnRule,
+}
+
+impl PickHow {
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Gentlest => "gentlest-at-or-below",
+            Self::Fastest => "fastest",
+            Self::OwnRule => "own-rule",
+        }
+    }
+}
+
+/// One run's snapshot chosen at its setting's common speed.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SpeedPick<'a> {
+    pub run: &'a RunSnapshots,
+    /// The setting's common speed T*: the median validation Nav. Time of the good snapshots of
+    /// every run given in the setting (`None` when none has one).
+    pub nav_time: Option<f64>,
+    pub pick: Option<&'a Validation>,
+    pub how: PickHow,
+}
+
+/// The common-speed choice of Experiment 15 (`docs/REPRODUCTION.md`), one per run in the order
+/// given: in each setting T* is the median validation Nav. Time of the good snapshots of all
+/// runs given there (every method's); a run takes its good snapshot of lowest validation Disc.
+/// among those no slower than T* (ties: the faster, then the earlier), else its fastest good
+/// snapshot, else its own rule's choice. Every method is thus shipped at about the same speed,
+/// chosen on validation seeds alone.
+pub fn common_speed_picks(runs: &[RunSnapshots]) -> Vec<SpeedPick<'_>> {
+    let mut by_setting: BTreeMap<usize, Vec<&RunSnapshots>> = BTreeMap::new();
+    for r in runs {
+        by_setting.entry(r.setting.index()).or_default().push(r);
+    }
+    let medians: BTreeMap<usize, Option<f64>> = by_setting
+        .into_iter()
+        .map(|(i, rs)| (i, median_nav_time(rs)))
+        .collect();
+    let key = |v: &&Validation| point(v).map(|(nav, disc)| (disc, nav, v.rl_episodes));
+    runs.iter()
+        .map(|r| {
+            let nav_time = medians[&r.setting.index()];
+            let at_or_below = nav_time.and_then(|t| {
+                r.good
+                    .iter()
+                    .filter(|v| point(v).is_some_and(|p| p.0 <= t))
+                    .min_by(|a, b| {
+                        let (a, b) = (key(a).unwrap(), key(b).unwrap());
+                        a.0.total_cmp(&b.0)
+                            .then(a.1.total_cmp(&b.1))
+                            .then(a.2.cmp(&b.2))
+                    })
+            });
+            let fastest = || {
+                r.good.iter().filter(|v| point(v).is_some()).min_by(|a, b| {
+                    let (a, b) = (key(a).unwrap(), key(b).unwrap());
+                    a.1.total_cmp(&b.1).then(a.2.cmp(&b.2))
+                })
+            };
+            let (pick, how) = match (at_or_below, fastest()) {
+                (Some(v), _) => (Some(v), PickHow::Gentlest),
+                (None, Some(v)) => (Some(v), PickHow::Fastest),
+                (None, None) => (r.chosen.as_ref(), PickHow::OwnRule),
+            };
+            SpeedPick {
+                run: r,
+                nav_time,
+                pick,
+                how,
+            }
+        })
+        .collect()
+}
+
 /// One setting's comparison at a common speed.
 #[derive(Debug, Clone, PartialEq)]
 pub struct CommonSpeed {
@@ -428,16 +527,7 @@ pub fn at_common_speed(runs: &[RunSnapshots]) -> Vec<CommonSpeed> {
     by_setting
         .into_iter()
         .filter_map(|(i, rs)| {
-            let mut navs: Vec<f64> = rs
-                .iter()
-                .flat_map(|r| r.good.iter().filter_map(point).map(|p| p.0))
-                .collect();
-            navs.sort_by(f64::total_cmp);
-            let nav_time = match navs.len() {
-                0 => return None,
-                n if n % 2 == 1 => navs[n / 2],
-                n => 0.5 * (navs[n / 2 - 1] + navs[n / 2]),
-            };
+            let nav_time = median_nav_time(rs.iter().copied())?;
             let mut methods: BTreeMap<String, Vec<LineFit>> = BTreeMap::new();
             for r in rs {
                 let pts: Vec<(f64, f64)> = r.good.iter().filter_map(point).collect();
@@ -578,6 +668,100 @@ mod tests {
             diff < -0.009,
             "{diff}: compared at the same speed, not at each run's own"
         );
+    }
+
+    #[test]
+    fn the_common_speed_pick_is_the_gentlest_no_slower_than_the_median_of_all_runs() {
+        let v = |ep: u64, nav: f64, disc: f64| Validation {
+            rl_episodes: ep,
+            success: 1.0,
+            collision: 0.0,
+            disc: Some(disc),
+            nav_time_s: Some(nav),
+        };
+        let run = |method: &str, setting: &str, good: Vec<Validation>, chosen| RunSnapshots {
+            run: PathBuf::from(format!("{method}-{setting}")),
+            method: method.into(),
+            setting: setting.parse().unwrap(),
+            seed: 0,
+            good,
+            chosen,
+        };
+        let runs = [
+            // Times 10, 11, 12 and 11.5, 12.5, 13: the median of the six is 11.75 s.
+            run(
+                "fsrl",
+                "env2-visible",
+                vec![
+                    v(2000, 10.0, 0.09),
+                    v(2250, 11.0, 0.05),
+                    v(2500, 12.0, 0.01),
+                ],
+                None,
+            ),
+            run(
+                "sarl",
+                "env2-visible",
+                vec![
+                    v(2000, 13.0, 0.01),
+                    v(2250, 12.5, 0.02),
+                    v(2500, 11.5, 0.07),
+                ],
+                None,
+            ),
+            // Alone in its setting and slower than nothing: its gentlest at or below its own
+            // median (11 s) of two equally gentle snapshots is the faster one.
+            run(
+                "sarl",
+                "env1-invisible",
+                vec![
+                    v(2000, 11.0, 0.03),
+                    v(2250, 12.0, 0.01),
+                    v(2500, 10.0, 0.03),
+                ],
+                None,
+            ),
+            // No good snapshot: the run's own rule.
+            run("fsrl", "env1-invisible", vec![], Some(v(4000, 14.0, 0.2))),
+        ];
+        let picks = common_speed_picks(&runs);
+        let got: Vec<(Option<u64>, PickHow)> = picks
+            .iter()
+            .map(|p| (p.pick.map(|v| v.rl_episodes), p.how))
+            .collect();
+        assert_eq!(
+            got,
+            [
+                (Some(2250), PickHow::Gentlest),
+                (Some(2500), PickHow::Gentlest),
+                (Some(2500), PickHow::Gentlest),
+                (Some(4000), PickHow::OwnRule),
+            ]
+        );
+        assert_eq!(picks[0].nav_time, Some(11.75));
+        assert_eq!(picks[2].nav_time, Some(11.0));
+        // A setting whose every snapshot is slower than the median of another's: the fastest.
+        let slow = [
+            run(
+                "fsrl",
+                "env3-visible",
+                vec![v(2000, 12.0, 0.05), v(2250, 13.0, 0.01)],
+                None,
+            ),
+            run(
+                "sarl",
+                "env3-visible",
+                vec![v(2000, 10.0, 0.2), v(2250, 10.5, 0.1)],
+                None,
+            ),
+        ];
+        let picks = common_speed_picks(&slow);
+        assert_eq!(picks[0].nav_time, Some(11.25));
+        assert_eq!(
+            (picks[0].pick.map(|v| v.rl_episodes), picks[0].how),
+            (Some(2000), PickHow::Fastest)
+        );
+        assert_eq!(picks[1].pick.map(|v| v.rl_episodes), Some(2250));
     }
 
     #[test]

@@ -508,6 +508,41 @@ fn frontier_counts_the_snapshots_that_reach_the_papers_point() {
     assert_eq!(src.matches("<circle").count(), 4 + 2);
     png(&dir.join("pics/f.png"), &v);
 
+    // --pick common-speed: one snapshot a run, nothing written. The good snapshots' times are
+    // 11 and 12 s (FSRL), 10.5 and 11.5 s (SARL): T* = 11.25 s, and each run's gentlest no
+    // slower is its first (FSRL's gentlest overall, 12 s, is too slow).
+    let g = dir.join("g");
+    let picked = ok(&[
+        "plot",
+        "frontier",
+        s(&fsrl_run),
+        s(&sarl_run),
+        "--pick",
+        "common-speed",
+        "--out",
+        s(&g),
+    ]);
+    assert_eq!(
+        picked,
+        format!(
+            "{}\t100\t11.250\tgentlest-at-or-below\n{}\t100\t11.250\tgentlest-at-or-below\n",
+            fsrl_run.display(),
+            sarl_run.display()
+        )
+    );
+    assert!(!g.with_extension("svg").exists() && !g.with_extension("md").exists());
+    let e = fails(&[
+        "plot",
+        "frontier",
+        s(&fsrl_run),
+        "--pick",
+        "common-speed",
+        "--list",
+    ]);
+    assert!(e.contains("cannot be used with"), "{e}");
+    let e = fails(&["plot", "frontier", s(&fsrl_run), "--pick", "fastest"]);
+    assert!(e.contains("invalid value 'fastest'"), "{e}");
+
     // Not a run directory: a clear error.
     let e = fails(&["plot", "frontier", s(dir), "--out", s(&dir.join("g"))]);
     assert!(e.contains("not a run directory (no config.toml"), "{e}");
