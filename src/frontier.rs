@@ -471,30 +471,31 @@ pub fn common_speed_picks(runs: &[RunSnapshots]) -> Vec<SpeedPick<'_>> {
         .into_iter()
         .map(|(i, rs)| (i, median_nav_time(rs)))
         .collect();
-    let key = |v: &&Validation| point(v).map(|(nav, disc)| (disc, nav, v.rl_episodes));
     runs.iter()
         .map(|r| {
             let nav_time = medians[&r.setting.index()];
+            // (Disc., Nav. Time, RL episodes) of each good snapshot that has both.
+            let keyed: Vec<((f64, f64, u64), &Validation)> = r
+                .good
+                .iter()
+                .filter_map(|v| point(v).map(|(nav, disc)| ((disc, nav, v.rl_episodes), v)))
+                .collect();
             let at_or_below = nav_time.and_then(|t| {
-                r.good
+                keyed
                     .iter()
-                    .filter(|v| point(v).is_some_and(|p| p.0 <= t))
-                    .min_by(|a, b| {
-                        let (a, b) = (key(a).unwrap(), key(b).unwrap());
+                    .filter(|(k, _)| k.1 <= t)
+                    .min_by(|(a, _), (b, _)| {
                         a.0.total_cmp(&b.0)
                             .then(a.1.total_cmp(&b.1))
                             .then(a.2.cmp(&b.2))
                     })
             });
-            let fastest = || {
-                r.good.iter().filter(|v| point(v).is_some()).min_by(|a, b| {
-                    let (a, b) = (key(a).unwrap(), key(b).unwrap());
-                    a.1.total_cmp(&b.1).then(a.2.cmp(&b.2))
-                })
-            };
-            let (pick, how) = match (at_or_below, fastest()) {
-                (Some(v), _) => (Some(v), PickHow::Gentlest),
-                (None, Some(v)) => (Some(v), PickHow::Fastest),
+            let fastest = keyed
+                .iter()
+                .min_by(|(a, _), (b, _)| a.1.total_cmp(&b.1).then(a.2.cmp(&b.2)));
+            let (pick, how) = match (at_or_below, fastest) {
+                (Some(&(_, v)), _) => (Some(v), PickHow::Gentlest),
+                (None, Some(&(_, v))) => (Some(v), PickHow::Fastest),
                 (None, None) => (r.chosen.as_ref(), PickHow::OwnRule),
             };
             SpeedPick {
@@ -709,8 +710,8 @@ mod tests {
                 ],
                 None,
             ),
-            // Alone in its setting and slower than nothing: its gentlest at or below its own
-            // median (11 s) of two equally gentle snapshots is the faster one.
+            // The only run with snapshots in its setting: T* is its own median (11 s); of its
+            // two equally gentle snapshots at or below it, the faster.
             run(
                 "sarl",
                 "env1-invisible",
