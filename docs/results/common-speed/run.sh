@@ -7,8 +7,10 @@
 # Each pick is scored on the 500 test seeds of its setting; the snapshot files are looked up in
 # the run roots of $RUNS (not committed; default "runs/grid10 runs/h14e runs/h15"), an earlier
 # score of the same snapshot (runs/grid10/test-seeds, H13c) is reused. Writes
-# docs/results/common-speed/{picks.tsv,<run>.json,<run>.md} and per setting vs-<setting>/ (`fsrl
-# compare` FSRL against SARL), and compare/ (every setting, beside the paper).
+# $OUT/{picks.tsv,<run>.json,<run>.md} and per setting vs-<setting>/ (`fsrl compare` FSRL against
+# SARL), and compare/ (every setting, beside the paper); OUT defaults to docs/results/common-speed.
+# $LOGS: the directories holding the validation logs (space-separated; default
+# docs/results/frontier/logs); H15e adds docs/results/frontier/logs-h15e with OUT elsewhere.
 set -euo pipefail
 cd "$(dirname "$0")/../../.."
 FSRL=${1:?usage: run.sh FSRL_BINARY [SETTING...]}
@@ -16,10 +18,15 @@ shift
 SETTINGS=("$@")
 [ ${#SETTINGS[@]} -gt 0 ] || SETTINGS=(env1-invisible env2-invisible env3-invisible env1-visible env2-visible env3-visible)
 read -r -a ROOTS <<< "${RUNS:-runs/grid10 runs/h14e runs/h15}"
-OUT=docs/results/common-speed
-LOGS=docs/results/frontier/logs
+OUT=${OUT:-docs/results/common-speed}
+read -r -a LOGDIRS <<< "${LOGS:-docs/results/frontier/logs}"
+mkdir -p "$OUT"
 for setting in "${SETTINGS[@]}"; do
-  "$FSRL" plot frontier "$LOGS"/{fsrl,sarl}-"$setting"-s[0-9] --pick common-speed > "$OUT/picks-$setting.tsv"
+  logs=()
+  for d in "${LOGDIRS[@]}"; do
+    for r in "$d"/{fsrl,sarl}-"$setting"-s[0-9]; do [ -d "$r" ] && logs+=("$r"); done
+  done
+  "$FSRL" plot frontier "${logs[@]}" --pick common-speed > "$OUT/picks-$setting.tsv"
   while IFS=$'\t' read -r log ep tstar how; do
     run=$(basename "$log")
     [ "$ep" != last ] || { echo "$run: no good snapshot; not covered by this script" >&2; exit 1; }
