@@ -409,6 +409,15 @@ impl LineFit {
     }
 }
 
+/// `runs` grouped by setting (keyed by [`Setting::index`]), in the order given.
+fn by_setting(runs: &[RunSnapshots]) -> BTreeMap<usize, Vec<&RunSnapshots>> {
+    let mut by: BTreeMap<usize, Vec<&RunSnapshots>> = BTreeMap::new();
+    for r in runs {
+        by.entry(r.setting.index()).or_default().push(r);
+    }
+    by
+}
+
 /// The median Nav. Time over every good snapshot of `runs`: the common speed of a setting.
 fn median_nav_time<'a>(runs: impl IntoIterator<Item = &'a RunSnapshots>) -> Option<f64> {
     let mut navs: Vec<f64> = runs
@@ -463,11 +472,7 @@ pub struct SpeedPick<'a> {
 /// snapshot, else its own rule's choice. Every method is thus shipped at about the same speed,
 /// chosen on validation seeds alone.
 pub fn common_speed_picks(runs: &[RunSnapshots]) -> Vec<SpeedPick<'_>> {
-    let mut by_setting: BTreeMap<usize, Vec<&RunSnapshots>> = BTreeMap::new();
-    for r in runs {
-        by_setting.entry(r.setting.index()).or_default().push(r);
-    }
-    let medians: BTreeMap<usize, Option<f64>> = by_setting
+    let medians: BTreeMap<usize, Option<f64>> = by_setting(runs)
         .into_iter()
         .map(|(i, rs)| (i, median_nav_time(rs)))
         .collect();
@@ -521,11 +526,7 @@ pub struct CommonSpeed {
 /// Per setting (in [`Setting::ALL`] order), the methods' runs' Disc. lines and the common Nav.
 /// Time to read them at; settings without a fitted run are left out.
 pub fn at_common_speed(runs: &[RunSnapshots]) -> Vec<CommonSpeed> {
-    let mut by_setting: BTreeMap<usize, Vec<&RunSnapshots>> = BTreeMap::new();
-    for r in runs {
-        by_setting.entry(r.setting.index()).or_default().push(r);
-    }
-    by_setting
+    by_setting(runs)
         .into_iter()
         .filter_map(|(i, rs)| {
             let nav_time = median_nav_time(rs.iter().copied())?;
