@@ -1,5 +1,6 @@
 //! `fsrl check-config FILE...`: parses and validates run configurations, printing each resolved
-//! (with every default filled in) or every problem found.
+//! (with every default filled in) or every problem found. Without a file it checks the built-in
+//! defaults (`fsrl check-config --print` shows them).
 
 use std::path::PathBuf;
 
@@ -7,8 +8,7 @@ use crate::config::FileConfig;
 
 #[derive(Debug, clap::Args)]
 pub struct CheckArgs {
-    /// Config files to check
-    #[arg(required = true)]
+    /// Config files to check [default: the built-in defaults]
     pub files: Vec<PathBuf>,
     /// Print each resolved config
     #[arg(long)]
@@ -17,8 +17,17 @@ pub struct CheckArgs {
 
 pub fn run(args: CheckArgs) -> anyhow::Result<()> {
     let mut failed = 0;
-    for f in &args.files {
-        let checked = FileConfig::load(Some(f)).and_then(|c| {
+    let files: Vec<Option<&PathBuf>> = if args.files.is_empty() {
+        vec![None]
+    } else {
+        args.files.iter().map(Some).collect()
+    };
+    let total = files.len();
+    for f in files {
+        let name = f.map_or("the built-in defaults".to_string(), |f| {
+            f.display().to_string()
+        });
+        let checked = FileConfig::load(f.map(|f| f.as_path())).and_then(|c| {
             let r = c.resolve(Vec::new())?;
             r.file
                 .transport
@@ -32,27 +41,21 @@ pub fn run(args: CheckArgs) -> anyhow::Result<()> {
         match checked {
             Ok(r) => {
                 println!(
-                    "ok: {} (run {}, {} on {})",
-                    f.display(),
-                    r.file.run.id,
-                    r.method,
-                    r.setting
+                    "ok: {name} (run {}, {} on {})",
+                    r.file.run.id, r.method, r.setting
                 );
-                if let Some(problem) = crate::select::distributed_problem(&r.file.train) {
-                    println!("  note: not for multi-process `fsrl train` nor the learner/actor/evaluator commands: {problem}");
-                }
                 if args.print {
                     println!("{}", toml::to_string(&r.file)?);
                 }
             }
             Err(e) => {
                 failed += 1;
-                eprintln!("error: {}: {e:#}", f.display());
+                eprintln!("error: {name}: {e:#}");
             }
         }
     }
     if failed > 0 {
-        anyhow::bail!("{failed} of {} config file(s) invalid", args.files.len());
+        anyhow::bail!("{failed} of {total} config file(s) invalid");
     }
     Ok(())
 }

@@ -3,8 +3,9 @@
 //! evaluates each model on the test seeds of its setting and ORCA on all six, and writes one
 //! report beside the paper's numbers (`fsrl compare`, in this process).
 //!
-//! Every step is a child process of this same executable (`fsrl train --single-process`,
-//! `fsrl export-model`, `fsrl eval`); this module only decides what to run. A run directory
+//! Every step is a child process of this same executable (`fsrl train`: a learner, actors and
+//! an evaluator, or `fsrl train --single-process` with `--single-process`; `fsrl export-model`,
+//! `fsrl eval`); this module only decides what to run. A run directory
 //! with `report.json` is finished, one with `checkpoints/latest.ckpt` alone is resumed, any other
 //! is removed and started again; a model at least as new as its run's `report.json` and an
 //! `eval.json` at least as new as its model (same episodes, same setting) are kept. Running the
@@ -29,9 +30,18 @@ use crate::report::{EvalReport, EVAL_KIND};
 
 #[derive(Debug, clap::Args)]
 pub struct ReproduceArgs {
-    /// Run configuration of every run ([train] schedule, [sim] simulator)
-    #[arg(long, default_value = "configs/fast.toml")]
-    pub config: PathBuf,
+    /// Run configuration of every run ([train] schedule, [sim] simulator) [default: the
+    /// built-in defaults: the short schedule of configs/fast.toml; the paper's is
+    /// configs/paper.toml]
+    #[arg(long)]
+    pub config: Option<PathBuf>,
+    /// Train each run in one process (`fsrl train --single-process`: bit-for-bit reproducible,
+    /// the path that trained the shipped models) instead of learner, actors and evaluator
+    #[arg(long)]
+    pub single_process: bool,
+    /// Actor processes of each distributed run
+    #[arg(long, default_value_t = 2)]
+    pub actors: u32,
     /// Methods to train, comma-separated, run in this order
     #[arg(long, value_delimiter = ',', default_values = ["lstm-rl", "sarl", "fsrl"])]
     pub methods: Vec<String>,
@@ -76,8 +86,11 @@ pub struct Grid {
 /// Reads the config and checks every name and number before anything starts, all problems
 /// reported together.
 pub fn grid(args: &ReproduceArgs) -> anyhow::Result<Grid> {
-    let file = FileConfig::load(Some(&args.config))?;
+    let file = FileConfig::load(args.config.as_deref())?;
     let mut problems = Vec::new();
+    if args.actors == 0 {
+        problems.push("--actors must be at least 1".to_string());
+    }
     let mut methods = Vec::new();
     for name in &args.methods {
         match name.parse::<Method>() {
@@ -696,7 +709,9 @@ pub fn run(args: ReproduceArgs) -> anyhow::Result<()> {
         grid.settings.len(),
         grid.methods.len(),
         planned.len(),
-        args.config.display(),
+        args.config
+            .as_ref()
+            .map_or("(built-in defaults)".to_string(), |c| c.display().to_string()),
         layout.runs.display(),
         layout.models.display(),
         args.episodes
@@ -709,7 +724,11 @@ pub fn run(args: ReproduceArgs) -> anyhow::Result<()> {
 
     let runner = Runner::new()?;
     let mut cal = Calibration::default();
-    let config = args.config.as_os_str();
+    // `--config FILE` for every child, or nothing: the children's defaults are this one's.
+    let config: Vec<OsString> = match &args.config {
+        Some(c) => os(&[&"--config", c]),
+        None => Vec::new(),
+    };
     let episodes = args.episodes.to_string();
     if !orca_current {
         eprintln!("[orca] evaluating ORCA on the six settings ...");
@@ -717,16 +736,12 @@ pub fn run(args: ReproduceArgs) -> anyhow::Result<()> {
             "[orca]",
             "evaluating ORCA",
             &orca_dir,
-            &os(&[
-                &"eval",
-                &"--orca",
-                &"--episodes",
-                &episodes,
-                &"--config",
-                &config,
-                &"--out",
-                &orca_dir,
-            ]),
+            &[
+                os(&[&"eval", &"--orca", &"--episodes", &episodes]),
+                config.clone(),
+                os(&[&"--out", &orca_dir]),
+            ]
+            .concat(),
         )?;
     }
     let mut sources = vec![orca_dir.join("eval.json")];
@@ -766,11 +781,13 @@ pub fn run(args: ReproduceArgs) -> anyhow::Result<()> {
                 duration_text(rough * cal.train_factor(method))
             );
             let seed_text = seed.to_string();
-            let mut a = os(&[
-                &"train",
-                &"--single-process",
-                &"--config",
-                &config,
+            let mode = if args.single_process {
+                os(&[&"--single-process"])
+            } else {
+                os(&[&"--actors", &args.actors.to_string()])
+            };
+            let mut a = [os(&[&"train"]), mode, config.clone()].concat();
+            a.extend(os(&[
                 &"--method",
                 &method.name(),
                 &"--setting",
@@ -779,7 +796,7 @@ pub fn run(args: ReproduceArgs) -> anyhow::Result<()> {
                 &seed_text,
                 &"--out",
                 &p.run_dir,
-            ]);
+            ]));
             if matches!(state, Training::Resume { .. }) {
                 a.push("--resume".into());
             }
@@ -864,7 +881,9 @@ mod tests {
 
     fn args(config: &Path, runs: &Path) -> ReproduceArgs {
         ReproduceArgs {
-            config: config.to_path_buf(),
+            config: Some(config.to_path_buf()),
+            single_process: false,
+            actors: 2,
             methods: vec!["sarl".into()],
             settings: Vec::new(),
             seeds: vec![0],

@@ -135,9 +135,6 @@ pub struct LearnerArgs {
 pub fn learner(args: LearnerArgs) -> anyhow::Result<()> {
     let stop = stop_flag()?;
     let r = args.common.resolve(|_| {})?;
-    if let Some(problem) = crate::select::distributed_problem(&r.file.train) {
-        anyhow::bail!("{problem}");
-    }
     let t = open_transport(&r, SenderId::new(Role::Learner, 0), &stop)?;
     let opts = learner::process::LearnerOptions {
         run_dir: r.run_dir(),
@@ -219,6 +216,7 @@ pub fn evaluator(args: EvaluatorArgs) -> anyhow::Result<()> {
             .out_dir
             .clone()
             .unwrap_or_else(|| r.run_dir().join("eval")),
+        final_report: e.final_report,
     };
     if let Some(path) = &args.checkpoint {
         // Offline: the checkpoint or model says what it is.
@@ -259,11 +257,26 @@ pub fn evaluator(args: EvaluatorArgs) -> anyhow::Result<()> {
         return Ok(());
     }
     let t = open_transport(&r, SenderId::new(Role::Evaluator, 0), &stop)?;
-    match evaluator::process::run(&t, &r.spec(), &opts, &stop)? {
-        evaluator::process::EvaluatorExit::Finished(rep) => {
+    // Every validated snapshot is kept as a model file (before its validation line), so the
+    // selection rules, `fsrl eval RUN` and `fsrl export-model RUN` work as on a single-process run.
+    let spec = r.spec();
+    let snapshots = crate::select::snapshot_dir(&opts.out_dir);
+    let keep = |net: &policy::ValueNet, version: u64, rl_episodes: u64| -> Result<(), String> {
+        std::fs::create_dir_all(&snapshots)
+            .map_err(|e| format!("cannot create {}: {e}", snapshots.display()))?;
+        let path = crate::select::snapshot_path(&opts.out_dir, rl_episodes);
+        learner::model::Model::from_snapshot(&spec, &r.file.run.id, net, version, rl_episodes)
+            .and_then(|m| m.save(&path))
+            .map_err(|e| format!("cannot keep the snapshot {}: {e}", path.display()))
+    };
+    let keep_snapshots = spec.train.select != policy::method::Select::Last;
+    let keeper: Option<evaluator::process::KeepSnapshot<'_>> = keep_snapshots.then_some(&keep);
+    match evaluator::process::run(&t, &spec, &opts, &stop, keeper)? {
+        evaluator::process::EvaluatorExit::Finished(Some(rep)) => {
             println!("{}", evaluator::process::markdown(&rep, r.method.name(), 0));
         }
-        evaluator::process::EvaluatorExit::Stopped => {}
+        evaluator::process::EvaluatorExit::Finished(None)
+        | evaluator::process::EvaluatorExit::Stopped => {}
     }
     Ok(())
 }

@@ -23,6 +23,87 @@ use sim::{Env, Outcome};
 
 use crate::config::{run_checkpoint, Resolved, RunOverrides};
 use crate::report::{Report, SettingReport};
+
+/// The final evaluation of a finished run, the same in both modes: the run's policy (its
+/// `train.select` rule: the last checkpoint, or the chosen validation snapshot) on
+/// `train.eval_episodes` test episodes of its own setting; writes `report.json` and `report.md`
+/// into the run directory and prints the table.
+pub(crate) fn final_evaluation(out: &Path, spec: &RunSpec) -> anyhow::Result<Report> {
+    let train = &spec.train;
+    eprintln!(
+        "evaluating on {} test episodes of {} ...",
+        train.eval_episodes, spec.setting
+    );
+    let path = select::run_policy(out, None)?;
+    let (model, _) = learner::model::load_policy(&path)
+        .with_context(|| format!("cannot load {}", path.display()))?;
+    let subject = Subject::of_run(spec, &model.net);
+    let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
+    let results = evaluate(
+        subject,
+        &spec.sim,
+        &[spec.setting],
+        train.test_seed_start,
+        train.eval_episodes,
+        threads,
+    )?;
+    let report = Report {
+        method: spec.method.name().to_string(),
+        policy_version: model.counters.policy_version,
+        test_seed_start: train.test_seed_start,
+        settings: results
+            .iter()
+            .map(|r| SettingReport::new(r.setting.name(), &r.aggregate))
+            .collect(),
+    };
+    std::fs::write(
+        out.join("report.json"),
+        serde_json::to_string_pretty(&report)?,
+    )?;
+    let md = report.markdown();
+    std::fs::write(out.join("report.md"), &md)?;
+    println!("{md}");
+    Ok(report)
+}
+
+/// `run.json` of a run directory: which mode trained it and where its wall-clock time went
+/// (seconds; in a distributed run also each process's waiting and the realised replay ratio).
+pub(crate) struct RunTiming {
+    value: serde_json::Map<String, serde_json::Value>,
+}
+
+impl RunTiming {
+    pub(crate) fn new(mode: &str) -> Self {
+        let mut value = serde_json::Map::new();
+        value.insert("mode".into(), mode.into());
+        Self { value }
+    }
+    pub(crate) fn set(&mut self, key: &str, v: impl Into<serde_json::Value>) {
+        self.value.insert(key.into(), v.into());
+    }
+    /// Adds `key` to the recorded time (a resumed run adds its invocation's share).
+    pub(crate) fn add_s(&mut self, key: &str, seconds: f64) {
+        let before = self.value.get(key).and_then(|v| v.as_f64()).unwrap_or(0.0);
+        self.set(key, before + seconds);
+    }
+    /// What an earlier invocation of the same run recorded (a resumed run goes on from it).
+    pub(crate) fn read(out: &Path, mode: &str) -> Self {
+        let mut t = Self::new(mode);
+        if let Ok(text) = std::fs::read_to_string(out.join("run.json")) {
+            if let Ok(serde_json::Value::Object(m)) = serde_json::from_str(&text) {
+                if m.get("mode").and_then(|v| v.as_str()) == Some(mode) {
+                    t.value = m;
+                }
+            }
+        }
+        t
+    }
+    pub(crate) fn write(&self, out: &Path) -> anyhow::Result<()> {
+        let path = out.join("run.json");
+        std::fs::write(&path, serde_json::to_string_pretty(&self.value)? + "\n")
+            .with_context(|| format!("cannot write {}", path.display()))
+    }
+}
 use crate::select;
 
 /// Episode-seed streams of a run (see `policy::rollout::episode_seed`).
@@ -49,7 +130,7 @@ pub struct TrainArgs {
     #[arg(long)]
     pub single_process: bool,
     /// Actor processes (multi-process mode)
-    #[arg(long, default_value_t = 1)]
+    #[arg(long, default_value_t = 2)]
     pub actors: u32,
     /// Data plane of the local run: iceoryx2 (shared memory) or zenoh
     #[arg(long, default_value = "iceoryx2")]
@@ -305,6 +386,8 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
     };
     let mut env = Env::new(sim_cfg.clone(), setting, 0)?;
     let start = Instant::now();
+    // Where the time goes (run.json; a resumed run adds to what the earlier ones recorded).
+    let mut timing = RunTiming::read(&out, "single-process");
     eprintln!(
         "training {method} on {setting} (seed {run_seed}) in {}: {} demonstrations × {} epochs, {} RL episodes",
         out.display(),
@@ -360,6 +443,7 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
             core.imitation_loss()?,
             core.replay().len()
         );
+        timing.add_s("warm_start_s", start.elapsed().as_secs_f64());
     }
 
     // Deep V-learning.
@@ -380,7 +464,9 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
         train: train.clone(),
         seed: run_seed,
     };
+    let validation_time = std::cell::Cell::new(Duration::ZERO);
     let validate = |core: &LearnerCore, metrics: &mut std::fs::File| -> anyhow::Result<()> {
+        let t0 = Instant::now();
         let line = validation_line(core, &spec, wall0 + start.elapsed())?;
         if train.select != Select::Last {
             // The snapshot before its line: a line always has its weights on disk.
@@ -391,6 +477,7 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
             Model::from_core(core, &sim_cfg, &run_info)?.save(&path)?;
         }
         writeln!(metrics, "{}", serde_json::to_string(&line)?)?;
+        validation_time.set(validation_time.get() + t0.elapsed());
         Ok(())
     };
     if validate_every > 0 && first == 0 {
@@ -460,6 +547,13 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
     bar.finish_and_clear();
     save(&core, &latest)?;
     metrics.flush()?;
+    timing.add_s("validation_s", validation_time.get().as_secs_f64());
+    timing.add_s(
+        "rl_s",
+        (rl_start.elapsed().saturating_sub(validation_time.get())).as_secs_f64(),
+    );
+    timing.add_s("total_s", start.elapsed().as_secs_f64());
+    timing.write(&out)?;
     if interrupted {
         eprintln!(
             "checkpoint written to {} after {} RL episodes; continue with the same command and --resume",
@@ -469,48 +563,12 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
         return Ok(());
     }
 
-    // Final evaluation on the setting's test seeds.
-    eprintln!(
-        "evaluating on {} test episodes of {setting} ...",
-        train.eval_episodes
-    );
-    let selected = match train.select {
-        Select::Last => None,
-        Select::BestValidation | Select::LowDisc => {
-            let path = select::run_policy(&out, None)?;
-            Some(Model::load(&path).with_context(|| format!("cannot load {}", path.display()))?)
-        }
-    };
-    let net = selected.as_ref().map_or(core.online(), |m| &m.net);
-    let subject = Subject::of_run(&spec, net);
-    let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
-    let results = evaluate(
-        subject,
-        &file.sim,
-        &[setting],
-        train.test_seed_start,
-        train.eval_episodes,
-        threads,
-    )?;
-    let report = Report {
-        method: method.name().to_string(),
-        policy_version: selected
-            .as_ref()
-            .map_or(core.counters(), |m| m.counters)
-            .policy_version,
-        test_seed_start: train.test_seed_start,
-        settings: results
-            .iter()
-            .map(|r| SettingReport::new(r.setting.name(), &r.aggregate))
-            .collect(),
-    };
-    std::fs::write(
-        out.join("report.json"),
-        serde_json::to_string_pretty(&report)?,
-    )?;
-    let md = report.markdown();
-    std::fs::write(out.join("report.md"), &md)?;
-    println!("{md}");
+    // Final evaluation on the setting's test seeds: the run's policy by its selection rule.
+    let final_start = Instant::now();
+    final_evaluation(&out, &spec)?;
+    timing.add_s("final_evaluation_s", final_start.elapsed().as_secs_f64());
+    timing.add_s("total_s", final_start.elapsed().as_secs_f64());
+    timing.write(&out)?;
     println!(
         "run directory: {} (config.toml, checkpoints/, metrics.jsonl, report.md, report.json); {:.1} s in all",
         out.display(),

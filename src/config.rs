@@ -220,8 +220,12 @@ pub struct EvaluatorSection {
     pub settings: Vec<String>,
     /// Worker threads.
     pub threads: usize,
-    /// Where reports go (default: `<run_dir>/eval`).
+    /// Where reports, the learning curve (`validation.jsonl`) and the validated snapshots
+    /// (`checkpoints/validation/`) go (default: `<run_dir>/eval`).
     pub out_dir: Option<std::path::PathBuf>,
+    /// Evaluate the final weights on `settings` when the run ends (the local launcher turns it
+    /// off and evaluates the run's chosen policy on its own setting, as `--single-process`).
+    pub final_report: bool,
 }
 
 impl Default for EvaluatorSection {
@@ -233,6 +237,7 @@ impl Default for EvaluatorSection {
             settings: Setting::ALL.iter().map(|s| s.name().to_string()).collect(),
             threads: 1,
             out_dir: None,
+            final_report: true,
         }
     }
 }

@@ -18,7 +18,7 @@ use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use proto::{keys, Role, SenderId};
 use transport::{DataPlane, Transport};
 
-use crate::cmd_train::{resolve, TrainArgs};
+use crate::cmd_train::{final_evaluation, resolve, RunTiming, TrainArgs};
 use crate::config::run_checkpoint;
 
 /// zenoh's usual port when it is free, else any free loopback port.
@@ -144,7 +144,6 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
             bail!("{e:#}\n  - {}", problems.join("\n  - "));
         }
     };
-    problems.extend(crate::select::distributed_problem(&resolved.file.train));
     if !problems.is_empty() {
         return Err(sim::ConfigError { problems }.into());
     }
@@ -182,6 +181,8 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
     f.learner.run_dir = Some(out.clone());
     f.evaluator.out_dir = Some(out.clone());
     f.evaluator.threads = 1;
+    // The launcher evaluates the run's chosen policy itself at the end, as `--single-process`.
+    f.evaluator.final_report = false;
     if let Some(n) = args.eval_episodes {
         f.evaluator.episodes_per_setting = n;
     }
@@ -274,6 +275,10 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
     );
     bar.set_prefix("starting");
     let mut last_plain = Instant::now();
+    let started = Instant::now();
+    // The newest metrics of each process, and when the learner's warm start ended (its clock).
+    let mut last_values: std::collections::BTreeMap<String, proto::Metrics> = Default::default();
+    let mut warm_start_s: Option<f64> = None;
     let learner_exit = loop {
         if stop.load(Ordering::SeqCst) {
             children.signal(libc::SIGINT);
@@ -283,6 +288,11 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
             break status;
         }
         if let Some(msg) = metrics.recv_timeout(Duration::from_millis(200))? {
+            let sender = msg.header.sender.to_string();
+            // Every process's metrics, one line each (phase "process": the learning curves skip it).
+            let line = serde_json::json!({"phase": "process", "sender": sender, "wall_s": msg.body.wall_time_s, "env_steps": msg.body.env_steps, "episodes": msg.body.episodes, "values": msg.body.values});
+            let _ = writeln!(log, "{line}");
+            last_values.insert(sender, msg.body.clone());
             if msg.header.sender.role == Role::Evaluator {
                 // A point of the learning curve; it reaches metrics.jsonl from the evaluator's
                 // validation.jsonl when the run ends (this live copy is best effort).
@@ -301,8 +311,9 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
             }
             let v = &msg.body.values;
             let get = |k: &str| v.get(k).copied().unwrap_or(0.0);
-            let line = serde_json::json!({"wall_s": msg.body.wall_time_s, "env_steps": msg.body.env_steps, "values": v});
-            let _ = writeln!(log, "{line}");
+            if warm_start_s.is_none() && get("imitation_done") > 0.5 {
+                warm_start_s = Some(msg.body.wall_time_s);
+            }
             if get("imitation_done") < 0.5 && v.contains_key("demo_target") {
                 bar.set_prefix("demos");
                 bar.set_message(format!("{}/{}", get("demo_episodes"), get("demo_target")));
@@ -391,13 +402,94 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
         );
         return Ok(());
     }
+    let rl_end_s = started.elapsed().as_secs_f64();
+    let final_start = Instant::now();
+    final_evaluation(&out, &resolved.spec())?;
+    let mut timing = RunTiming::read(&out, "distributed");
+    timing.set("actors", args.actors);
+    timing.set("transport", args.transport.as_str());
+    let warm = warm_start_s.unwrap_or(0.0);
+    timing.add_s("warm_start_s", warm);
+    timing.add_s("rl_s", (rl_end_s - warm).max(0.0));
+    timing.add_s("final_evaluation_s", final_start.elapsed().as_secs_f64());
+    timing.add_s("total_s", started.elapsed().as_secs_f64());
+    let summary = process_summary(&last_values, &mut timing);
+    timing.write(&out)?;
     let report = out.join("report.md");
-    if let Ok(md) = std::fs::read_to_string(&report) {
-        println!("{md}");
+    if let Ok(mut md) = std::fs::read_to_string(&report) {
+        md.push_str(&summary);
+        std::fs::write(&report, &md)
+            .with_context(|| format!("cannot write {}", report.display()))?;
     }
+    println!("{summary}");
     println!(
-        "run directory: {} (config.toml, checkpoints/, metrics.jsonl, report.md, logs/)",
+        "run directory: {} (config.toml, run.json, checkpoints/, metrics.jsonl, report.md, logs/)",
         out.display()
     );
     Ok(())
+}
+
+/// Where a distributed run's time went, from each process's last metrics: the realised replay
+/// ratio and policy lag, and how long each process waited; recorded into `timing` and returned
+/// as a Markdown section of the run's report. A run whose learner hardly waited was
+/// learner-bound (more actors would not have made it faster); one whose actors hardly waited
+/// was actor-bound.
+fn process_summary(
+    last: &std::collections::BTreeMap<String, proto::Metrics>,
+    timing: &mut RunTiming,
+) -> String {
+    let of = |role: &'static str| {
+        last.iter()
+            .filter(move |(k, _)| k.starts_with(role))
+            .map(|(_, m)| m)
+    };
+    let val = |m: &proto::Metrics, k: &str| m.values.get(k).copied().unwrap_or(0.0);
+    let mut s = String::from("\n## How the run went (distributed)\n\n");
+    if let Some(l) = of("learner").next() {
+        let wall = l.wall_time_s.max(1e-9);
+        for k in [
+            "updates_per_episode",
+            "policy_lag_mean",
+            "policy_lag_p95",
+            "policy_lag_max",
+            "wait_s",
+            "train_s",
+        ] {
+            timing.set(&format!("learner_{k}"), val(l, k));
+        }
+        s += &format!(
+            "- learner: {:.1} updates per accepted episode, policy lag mean {:.2} (p95 {}), waited {:.0} s for episodes and trained {:.0} s of {:.0} s ({:.0} % waiting)\n",
+            val(l, "updates_per_episode"),
+            val(l, "policy_lag_mean"),
+            val(l, "policy_lag_p95"),
+            val(l, "wait_s"),
+            val(l, "train_s"),
+            wall,
+            100.0 * val(l, "wait_s") / wall
+        );
+    }
+    let actors: Vec<&proto::Metrics> = of("actor").collect();
+    if !actors.is_empty() {
+        let wait: f64 = actors.iter().map(|m| val(m, "wait_s")).sum();
+        let sim: f64 = actors.iter().map(|m| val(m, "sim_s")).sum();
+        let wall: f64 = actors.iter().map(|m| m.wall_time_s).sum::<f64>().max(1e-9);
+        timing.set("actors_wait_s", wait);
+        timing.set("actors_sim_s", sim);
+        s += &format!(
+            "- {} actor(s): simulated {sim:.0} s and waited {wait:.0} s in all ({:.0} % waiting)\n",
+            actors.len(),
+            100.0 * wait / wall
+        );
+    }
+    if let Some(e) = of("evaluator").next() {
+        timing.set("validation_s", val(e, "busy_s"));
+        timing.set("evaluator_wait_s", val(e, "wait_s"));
+        s += &format!(
+            "- evaluator: {} validations in {:.0} s, waited {:.0} s\n",
+            val(e, "validations"),
+            val(e, "busy_s"),
+            val(e, "wait_s")
+        );
+    }
+    s
 }

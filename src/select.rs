@@ -1,9 +1,11 @@
 //! `train.select`: which weights of a run are its trained policy. With `best-validation` or
-//! `low-disc`, `fsrl train --single-process` keeps every validation's weights as a model file
-//! (`checkpoints/validation/ep-<RL episodes>.fsrlm`, written before its `metrics.jsonl` line),
+//! `low-disc` every validation's weights are kept as a model file
+//! (`checkpoints/validation/ep-<RL episodes>.fsrlm`, written before its validation line: by the
+//! trainer in `fsrl train --single-process`, by the evaluator process in a distributed run),
 //! and the run's policy (final evaluation, `fsrl export-model RUN`, `fsrl eval RUN`) is the
 //! snapshot the rule chooses: the best validation success, or the lowest validation Disc. among
-//! the good validations after the ε decay. Only validation seeds take part in the choice.
+//! the good validations after the ε decay. Only validation seeds take part in the choice; a
+//! snapshot file that does not load (damaged, cut short) is reported and never chosen.
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -12,17 +14,6 @@ use anyhow::{bail, Context};
 use policy::method::{Select, LOW_DISC_MIN_SUCCESS};
 
 use crate::config::FileConfig;
-
-/// Why a distributed run cannot take this training config, if it cannot: there the evaluator
-/// process validates and keeps no weights, so only single-process training selects.
-pub fn distributed_problem(train: &policy::method::TrainConfig) -> Option<String> {
-    (train.select != Select::Last).then(|| {
-        format!(
-            "train.select = \"{}\" needs single-process training (`fsrl train --single-process`, `fsrl reproduce`): in a distributed run the evaluator validates and keeps no weights",
-            train.select.name()
-        )
-    })
-}
 
 /// The directory of a run's validation snapshots.
 pub fn snapshot_dir(run_dir: &Path) -> PathBuf {
@@ -154,8 +145,15 @@ pub fn chosen_snapshot(
     decay_end_episode: u64,
 ) -> anyhow::Result<Option<(Validation, PathBuf)>> {
     let path = run_dir.join("metrics.jsonl");
-    let text = std::fs::read_to_string(&path)
+    let mut text = std::fs::read_to_string(&path)
         .with_context(|| format!("cannot read {}", path.display()))?;
+    // A distributed run's evaluator writes its validation lines here first (the launcher copies
+    // them into metrics.jsonl when the run ends): a running or interrupted run is chosen from
+    // too. The same line twice is one validation.
+    if let Ok(extra) = std::fs::read_to_string(run_dir.join("validation.jsonl")) {
+        text.push('\n');
+        text.push_str(&extra);
+    }
     let (all, skipped) = validations(&text);
     if skipped > 0 {
         tracing::warn!(
@@ -163,9 +161,19 @@ pub fn chosen_snapshot(
             path.display()
         );
     }
-    let on_disk = all
-        .into_iter()
-        .filter(|v| snapshot_path(run_dir, v.rl_episodes).exists());
+    let on_disk = all.into_iter().filter(|v| {
+        let p = snapshot_path(run_dir, v.rl_episodes);
+        if !p.exists() {
+            return false;
+        }
+        match learner::model::Model::load(&p) {
+            Ok(_) => true,
+            Err(e) => {
+                eprintln!("warning: skipping a damaged snapshot (never chosen): {e}");
+                false
+            }
+        }
+    });
     let found = choose(rule, on_disk, decay_end_episode);
     Ok(found.map(|v| {
         let p = snapshot_path(run_dir, v.rl_episodes);
@@ -210,6 +218,38 @@ pub fn run_policy(run_dir: &Path, rule: Option<Select>) -> anyhow::Result<PathBu
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A real (loadable) snapshot file: a fresh SARL network's model.
+    fn snapshot(path: &Path) {
+        use std::sync::OnceLock;
+        static BYTES: OnceLock<Vec<u8>> = OnceLock::new();
+        let bytes = BYTES.get_or_init(|| {
+            let sim = sim::SimConfig::default();
+            let train = policy::method::TrainConfig::default();
+            let core = learner::LearnerCore::new(
+                policy::method::Method::Sarl,
+                train,
+                sim.humans.count,
+                sim.dt_s,
+                0,
+            )
+            .unwrap();
+            let run = learner::checkpoint::RunInfo {
+                run_id: "unit".into(),
+                setting: "env1-invisible".into(),
+                run_seed: 0,
+                accepted_below: Default::default(),
+            };
+            let dir = tempfile::tempdir().unwrap();
+            let p = dir.path().join("m.fsrlm");
+            learner::model::Model::from_core(&core, &sim, &run)
+                .unwrap()
+                .save(&p)
+                .unwrap();
+            std::fs::read(&p).unwrap()
+        });
+        std::fs::write(path, bytes).unwrap();
+    }
 
     fn line(ep: u64, success: f64, collision: f64) -> String {
         format!(
@@ -272,8 +312,8 @@ mod tests {
             [line(0, 0.1, 0.5), line(100, 0.9, 0.0), line(200, 0.7, 0.0)].concat(),
         )
         .unwrap();
-        // Without the switch: the last weights.
-        std::fs::write(run.join("config.toml"), "").unwrap();
+        // The last weights.
+        std::fs::write(run.join("config.toml"), "[train]\nselect = \"last\"\n").unwrap();
         assert_eq!(
             run_policy(run, None).unwrap(),
             run.join("checkpoints").join("latest.ckpt")
@@ -287,11 +327,19 @@ mod tests {
         assert!(err.contains("no validation snapshot"), "{err}");
         // The best validation's snapshot is missing (never written): the best one on disk.
         for ep in [0, 200] {
-            std::fs::write(snapshot_path(run, ep), b"x").unwrap();
+            snapshot(&snapshot_path(run, ep));
         }
         assert_eq!(run_policy(run, None).unwrap(), snapshot_path(run, 200));
+        // A damaged snapshot of the best validation is skipped, never chosen.
         std::fs::write(snapshot_path(run, 100), b"x").unwrap();
+        assert_eq!(run_policy(run, None).unwrap(), snapshot_path(run, 200));
+        snapshot(&snapshot_path(run, 100));
         assert_eq!(run_policy(run, None).unwrap(), snapshot_path(run, 100));
+        // A distributed run's evaluator writes validation.jsonl first: its lines count too.
+        std::fs::write(run.join("validation.jsonl"), [line(300, 1.0, 0.0)].concat()).unwrap();
+        snapshot(&snapshot_path(run, 300));
+        assert_eq!(run_policy(run, None).unwrap(), snapshot_path(run, 300));
+        std::fs::remove_file(run.join("validation.jsonl")).unwrap();
         // A rule given on the command line overrides the run's own.
         assert_eq!(
             run_policy(run, Some(Select::Last)).unwrap(),
@@ -360,7 +408,7 @@ mod tests {
         )
         .unwrap();
         for ep in [100, 300, 400] {
-            std::fs::write(snapshot_path(run, ep), b"x").unwrap();
+            snapshot(&snapshot_path(run, ep));
         }
         std::fs::write(
             run.join("config.toml"),

@@ -54,6 +54,9 @@ pub struct ActorStats {
     pub weights_version: u64,
     /// Weights messages that did not fit this run's network (skipped).
     pub bad_weights: u64,
+    /// Time spent simulating episodes, and waiting (no learner, no weights, no credit).
+    pub sim: Duration,
+    pub wait: Duration,
 }
 
 struct State {
@@ -230,7 +233,10 @@ pub fn run(
                 waiting_since = Some(Instant::now());
             }
             // Block on the next acknowledgement (or time out and re-check everything).
-            if let Some(msg) = acks.recv_timeout(Duration::from_millis(50))? {
+            let t0 = Instant::now();
+            let msg = acks.recv_timeout(Duration::from_millis(50))?;
+            stats.wait += t0.elapsed();
+            if let Some(msg) = msg {
                 apply_ack(&mut st, &mut stats, id, &msg.body);
             }
             continue;
@@ -246,6 +252,7 @@ pub fn run(
         let (version, net) = st.net.as_ref().expect("ready implies weights");
         let epsilon = ctl.as_ref().map_or(0.0, |c| c.body.epsilon as f64);
         let seed = episode_seed(spec.seed, actor_stream(id), episode);
+        let t0 = Instant::now();
         let data = rollout(
             &mut env,
             seed,
@@ -257,6 +264,7 @@ pub fn run(
             },
         )
         .map_err(|e| ActorError::Sim(e.to_string()))?;
+        stats.sim += t0.elapsed();
         let batch =
             to_batch(&data, episode, n_actions).map_err(|e| ActorError::Sim(e.to_string()))?;
         let version = *version;
@@ -321,6 +329,8 @@ fn publish_metrics(
         ("episodes_unacked", unacked as f64),
         ("weights_version", s.weights_version as f64),
         ("bad_weights", s.bad_weights as f64),
+        ("sim_s", s.sim.as_secs_f64()),
+        ("wait_s", s.wait.as_secs_f64()),
     ] {
         m.values.insert(k.to_string(), v);
     }

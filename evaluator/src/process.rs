@@ -22,8 +22,35 @@ pub struct EvaluatorOptions {
     pub seed_start: u64,
     pub settings: Vec<Setting>,
     pub threads: usize,
-    /// Reports are written here: `eval-<version>.{json,md}` and, at the end, `report.{json,md}`.
+    /// Reports are written here: `eval-<version>.{json,md}` and, at the end, `report.{json,md}`;
+    /// the learning curve (`validation.jsonl`) and the validated snapshots too
+    /// (`checkpoints/validation/ep-<RL episodes>.fsrlm`, see [`KeepSnapshot`]).
     pub out_dir: PathBuf,
+    /// Evaluate the final weights on `settings` when the run ends. The local launcher turns it
+    /// off: it evaluates the run's chosen policy itself, as single-process training does.
+    pub final_report: bool,
+}
+
+/// Keeps the weights a validation scored, before the validation's line is written (so a line
+/// always has its weights on disk): `(net, weights version, RL episodes trained)`. The binary
+/// writes a model file; the evaluator crate knows no file format of the learner's.
+pub type KeepSnapshot<'a> = &'a dyn Fn(&policy::ValueNet, u64, u64) -> Result<(), String>;
+
+/// Where a resumed evaluator goes on: the first validation due after the last one in
+/// `validation.jsonl` of `out_dir` (0 without one); a line that does not parse is skipped.
+pub fn next_validation_due(out_dir: &std::path::Path, every: u64) -> u64 {
+    let Ok(text) = std::fs::read_to_string(out_dir.join("validation.jsonl")) else {
+        return 0;
+    };
+    let last = text
+        .lines()
+        .filter_map(|l| serde_json::from_str::<serde_json::Value>(l).ok())
+        .filter_map(|v| v.get("episode").and_then(|e| e.as_u64()))
+        .max();
+    match (last, every) {
+        (None, _) | (_, 0) => 0,
+        (Some(ep), every) => (ep / every + 1).saturating_mul(every),
+    }
 }
 
 #[derive(Debug, thiserror::Error)]
@@ -166,6 +193,9 @@ pub struct ValidationPoint {
     pub mean_return: f64,
     /// Seconds since the evaluator started.
     pub wall_s: f64,
+    /// The weights version scored (the evaluator process knows it; the trainer adds its own).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub policy_version: Option<u64>,
 }
 
 impl ValidationPoint {
@@ -224,6 +254,7 @@ pub fn validate(
         nav_time_s: a.nav_time_s(),
         mean_return: a.mean_return(),
         wall_s: elapsed.as_secs_f64(),
+        policy_version: None,
     })
 }
 
@@ -244,8 +275,8 @@ fn append_validation(opts: &EvaluatorOptions, p: &ValidationPoint) -> Result<(),
 /// How the evaluator ended.
 #[derive(Debug, Clone, PartialEq)]
 pub enum EvaluatorExit {
-    /// The final snapshot was evaluated.
-    Finished(EvalReport),
+    /// The run finished (with the final snapshot's report unless `final_report` is off).
+    Finished(Option<EvalReport>),
     Stopped,
 }
 
@@ -255,6 +286,7 @@ pub fn run(
     spec: &RunSpec,
     opts: &EvaluatorOptions,
     stop: &AtomicBool,
+    keep: Option<KeepSnapshot<'_>>,
 ) -> Result<EvaluatorExit, ProcessError> {
     let net_cfg = spec.method.net().ok_or_else(|| {
         ProcessError::Other(format!("method {} has no weights to evaluate", spec.method))
@@ -270,9 +302,16 @@ pub fn run(
     let mut evaluated: Option<u64> = None;
     // The learning curve: the run's own setting on the validation seeds (never the test seeds).
     let val_every = spec.train.validation_every_episodes;
-    let mut next_val_due = 0u64;
+    // A restarted evaluator goes on from the next validation due (none is done twice).
+    let mut next_val_due = next_validation_due(&opts.out_dir, val_every);
+    if next_val_due > 0 {
+        tracing::info!(next_val_due, "validations already done; going on");
+    }
     let mut validated: Option<u64> = None;
     let started = std::time::Instant::now();
+    // Where the time goes: scoring (validations, reports) against waiting for weights.
+    let mut busy = Duration::ZERO;
+    let mut validations = 0u64;
     // Weights that do not fit this run's network (counted, skipped; never fatal until the end).
     let mut bad_weights = 0u64;
     let mut unusable: Option<u64> = None;
@@ -328,13 +367,30 @@ pub fn run(
             }
         };
         if val_due {
-            let point = validate(spec, &net, opts.threads, trained, started.elapsed())?;
+            let t0 = std::time::Instant::now();
+            let mut point = validate(spec, &net, opts.threads, trained, started.elapsed())?;
+            point.policy_version = Some(version);
+            if let Some(keep) = keep {
+                // The snapshot before its line.
+                keep(&net, version, trained).map_err(ProcessError::Other)?;
+            }
             append_validation(opts, &point)?;
-            metrics.publish(version, &point.metrics(trained))?;
+            busy += t0.elapsed();
+            validations += 1;
+            let mut m = point.metrics(trained);
+            let wall = started.elapsed().as_secs_f64();
+            m.values.insert("validations".into(), validations as f64);
+            m.values.insert("busy_s".into(), busy.as_secs_f64());
+            m.values
+                .insert("wait_s".into(), (wall - busy.as_secs_f64()).max(0.0));
+            metrics.publish(version, &m)?;
             validated = Some(version);
             while next_val_due <= trained {
                 next_val_due += val_every;
             }
+        }
+        if finished && !opts.final_report {
+            return Ok(EvaluatorExit::Finished(None));
         }
         if !(finished || due) {
             let _ = weights.next(Duration::from_millis(200))?;
@@ -369,7 +425,35 @@ pub fn run(
         }
         if finished {
             write(opts, "report", &r, spec.method.name(), version)?;
-            return Ok(EvaluatorExit::Finished(r));
+            return Ok(EvaluatorExit::Finished(Some(r)));
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_restarted_evaluator_goes_on_from_the_next_due_validation() {
+        let dir = tempfile::tempdir().unwrap();
+        // Nothing validated yet: the first one is due at once.
+        assert_eq!(next_validation_due(dir.path(), 250), 0);
+        std::fs::write(
+            dir.path().join("validation.jsonl"),
+            "{\"phase\":\"validation\",\"episode\":0}\n{\"phase\":\"validation\",\"episode\":253}\n{\"phase\":\"valid",
+        )
+        .unwrap();
+        // The last one was at 253 (late, the learner went on): the next is due at 500; the
+        // torn last line is skipped.
+        assert_eq!(next_validation_due(dir.path(), 250), 500);
+        std::fs::write(
+            dir.path().join("validation.jsonl"),
+            "{\"phase\":\"validation\",\"episode\":500}\n",
+        )
+        .unwrap();
+        assert_eq!(next_validation_due(dir.path(), 250), 750);
+        // No validations configured: nothing is due.
+        assert_eq!(next_validation_due(dir.path(), 0), 0);
     }
 }

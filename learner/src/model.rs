@@ -177,6 +177,39 @@ impl Model {
         Ok(model)
     }
 
+    /// The model of weights scored outside the learner (the evaluator process keeps every
+    /// validated snapshot): `net` at weights `version` after `rl_episodes` RL episodes of the
+    /// run `spec`. The evaluator knows only these counters of the learner's; env steps and
+    /// updates are left at zero. No check yet.
+    pub fn from_snapshot(
+        spec: &policy::method::RunSpec,
+        run_id: &str,
+        net: &policy::ValueNet,
+        version: u64,
+        rl_episodes: u64,
+    ) -> Result<Self, ModelError> {
+        let model = Self {
+            method: spec.method,
+            net: net.clone(),
+            setting: spec.setting,
+            run_id: run_id.to_string(),
+            run_seed: spec.seed,
+            train: spec.train.clone(),
+            sim: spec.method.sim_config(&spec.sim),
+            counters: Counters {
+                demo_episodes: spec.train.imitation.episodes,
+                imitation_done: true,
+                rl_episodes,
+                updates: 0,
+                env_steps: 0,
+                policy_version: version,
+            },
+            check: Vec::new(),
+        };
+        model.validate().map_err(ModelError::Invalid)?;
+        Ok(model)
+    }
+
     /// The model of a loaded checkpoint (no check yet).
     pub fn from_checkpoint(loaded: &checkpoint::Loaded) -> Result<Self, ModelError> {
         Self::from_core(&loaded.core, &loaded.sim, &loaded.run)

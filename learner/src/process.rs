@@ -83,6 +83,16 @@ impl Window {
         self.lags.push_back(lag);
         self.losses.push_back(loss);
     }
+    /// The `q` quantile of the window's policy lags (nearest rank; 0 without episodes).
+    fn lag_quantile(&self, q: f64) -> u64 {
+        let mut lags: Vec<u64> = self.lags.iter().copied().collect();
+        if lags.is_empty() {
+            return 0;
+        }
+        lags.sort_unstable();
+        let rank = ((q * lags.len() as f64).ceil() as usize).clamp(1, lags.len());
+        lags[rank - 1]
+    }
     fn rate(&self, o: Outcome) -> f64 {
         if self.outcomes.is_empty() {
             return 0.0;
@@ -118,7 +128,11 @@ struct Learner<'a> {
     /// Control and ack publications that failed (counted, never fatal).
     publish_failures: u64,
     start: Instant,
-    rl_start: (Instant, u64),
+    /// When RL started in this process, with the RL episodes and updates done then.
+    rl_start: (Instant, u64, u64),
+    /// Time the RL loop spent waiting for an episode (nothing to train on) and training.
+    wait: Duration,
+    train: Duration,
     last_loss: f32,
     sim_cfg: sim::SimConfig,
 }
@@ -310,12 +324,19 @@ impl Learner<'_> {
     fn publish_metrics(&self) -> Result<(), ProcessError> {
         let c = self.core.counters();
         let wall = self.start.elapsed().as_secs_f64();
-        let (t0, e0) = self.rl_start;
+        let (t0, e0, u0) = self.rl_start;
         let rl_wall = t0.elapsed().as_secs_f64().max(1e-9);
         let lag_mean = if self.window.lags.is_empty() {
             0.0
         } else {
             self.window.lags.iter().sum::<u64>() as f64 / self.window.lags.len() as f64
+        };
+        // The replay ratio this process realised: updates per accepted RL episode.
+        let rl_done = c.rl_episodes.saturating_sub(e0);
+        let updates_per_episode = if rl_done == 0 {
+            0.0
+        } else {
+            c.updates.saturating_sub(u0) as f64 / rl_done as f64
         };
         let mut m = Metrics {
             env_steps: c.env_steps,
@@ -345,6 +366,10 @@ impl Learner<'_> {
                 "policy_lag_max",
                 self.window.lags.iter().copied().max().unwrap_or(0) as f64,
             ),
+            ("policy_lag_p95", self.window.lag_quantile(0.95) as f64),
+            ("updates_per_episode", updates_per_episode),
+            ("wait_s", self.wait.as_secs_f64()),
+            ("train_s", self.train.as_secs_f64()),
             ("replay_size", self.core.replay().len() as f64),
             ("updates", c.updates as f64),
             ("rejected_messages", self.t.rejected_count() as f64),
@@ -560,7 +585,9 @@ pub fn run(
         checkpoint_failures: 0,
         publish_failures: 0,
         start: Instant::now(),
-        rl_start: (Instant::now(), 0),
+        rl_start: (Instant::now(), 0, 0),
+        wait: Duration::ZERO,
+        train: Duration::ZERO,
         last_loss: f32::NAN,
         sim_cfg,
     };
@@ -642,7 +669,11 @@ pub fn run(
         l.checkpoint()?;
         tracing::info!(transitions = l.core.replay().len(), "imitation done");
     }
-    l.rl_start = (Instant::now(), l.core.counters().rl_episodes);
+    l.rl_start = (
+        Instant::now(),
+        l.core.counters().rl_episodes,
+        l.core.counters().updates,
+    );
     l.publish_weights()?;
     l.publish_control();
     let mut last_tick = Instant::now();
@@ -673,7 +704,10 @@ pub fn run(
                 checkpoint_due = !l.try_checkpoint();
             }
         }
-        let Some(msg) = subscriber.recv_timeout(Duration::from_millis(50))? else {
+        let waited = Instant::now();
+        let msg = subscriber.recv_timeout(Duration::from_millis(50))?;
+        l.wait += waited.elapsed();
+        let Some(msg) = msg else {
             continue;
         };
         if msg.header.sender.role != Role::Actor {
@@ -716,7 +750,9 @@ pub fn run(
         if accepted != Accepted::Stored {
             continue;
         }
+        let trained = Instant::now();
         l.last_loss = l.core.train_rl(spec.train.rl.batches_per_episode)?;
+        l.train += trained.elapsed();
         if let Some(last) = l.window.losses.back_mut() {
             *last = l.last_loss;
         }
@@ -760,4 +796,26 @@ pub fn run(
         }
     }
     Ok(LearnerExit::Finished)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_lag_quantile_is_the_nearest_rank() {
+        let mut w = Window {
+            outcomes: VecDeque::new(),
+            lags: VecDeque::new(),
+            losses: VecDeque::new(),
+        };
+        assert_eq!(w.lag_quantile(0.95), 0);
+        for lag in [3, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 7] {
+            w.push(Outcome::ReachGoal, lag, 0.0);
+        }
+        // 20 lags: the 19th smallest is 3, the largest 7.
+        assert_eq!(w.lag_quantile(0.95), 3);
+        assert_eq!(w.lag_quantile(1.0), 7);
+        assert_eq!(w.lag_quantile(0.5), 1);
+    }
 }

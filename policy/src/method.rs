@@ -163,8 +163,8 @@ pub struct ImitationConfig {
 impl Default for ImitationConfig {
     fn default() -> Self {
         Self {
-            episodes: 3000,
-            epochs: 50,
+            episodes: 1000,
+            epochs: 30,
             learning_rate: 1e-3,
             batch_size: 100,
             safety_space_m: 0.15,
@@ -191,13 +191,13 @@ pub struct RlConfig {
 impl Default for RlConfig {
     fn default() -> Self {
         Self {
-            episodes: 10_000,
+            episodes: 5000,
             epsilon_start: 0.5,
             epsilon_end: 0.1,
-            epsilon_decay_episodes: 4000,
+            epsilon_decay_episodes: 2000,
             learning_rate: 1e-4,
             batch_size: 100,
-            batches_per_episode: 100,
+            batches_per_episode: 20,
             target_update_episodes: 50,
             replay_capacity: 100_000,
             replay_filter: ReplayFilter::All,
@@ -244,9 +244,9 @@ pub struct TrainConfig {
     pub validation_episodes: u32,
     /// First validation seed (CrowdNav: 0..99, disjoint from test 1000.. and training seeds).
     pub validation_seed_start: u64,
-    /// Which weights are the run's trained policy: the last (default, as CrowdNav), the
+    /// Which weights are the run's trained policy: the last (as CrowdNav and the paper), the
     /// validation snapshot with the best success (`docs/REPRODUCTION.md`, Experiment 5) or the
-    /// gentlest good one (Experiment 11).
+    /// gentlest good one (default, Experiment 11).
     pub select: Select,
 }
 
@@ -283,6 +283,11 @@ impl Select {
     }
 }
 
+/// The default schedule is the short one of `docs/REPRODUCTION.md` (Experiment 10, with the
+/// `low-disc` choice of Experiment 11; `configs/fast.toml` spells it out): 1000 demonstrations ×
+/// 30 epochs, 5000 RL episodes of 20 batches, ε 0.5 → 0.1 over 2000. The paper's schedule
+/// (3000 × 50, 10,000 episodes of 100 batches, ε over 4000, the last weights) is
+/// `configs/paper.toml`.
 impl Default for TrainConfig {
     fn default() -> Self {
         Self {
@@ -291,13 +296,13 @@ impl Default for TrainConfig {
             terminal_previews: false,
             imitation: ImitationConfig::default(),
             rl: RlConfig::default(),
-            checkpoint_every_episodes: 1000,
+            checkpoint_every_episodes: 500,
             eval_episodes: 500,
             test_seed_start: 1000,
-            validation_every_episodes: 500,
+            validation_every_episodes: 250,
             validation_episodes: 100,
             validation_seed_start: 0,
-            select: Select::Last,
+            select: Select::LowDisc,
         }
     }
 }
