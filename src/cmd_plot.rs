@@ -45,7 +45,7 @@ pub enum PlotCommand {
 
 #[derive(Debug, clap::Args)]
 pub struct FrontierArgs {
-    /// Run directories of `fsrl train --single-process` or `fsrl reproduce` (their config.toml,
+    /// Run directories of `fsrl train` or `fsrl reproduce` (their config.toml,
     /// metrics.jsonl and validation snapshots).
     #[arg(required = true)]
     pub runs: Vec<PathBuf>,

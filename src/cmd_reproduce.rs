@@ -1164,7 +1164,14 @@ mod tests {
 
     #[test]
     fn rough_estimates_follow_the_schedule() {
-        let t = TrainConfig::default();
+        // The paper's schedule (configs/paper.toml), validating every 500 episodes.
+        let mut t = TrainConfig::default();
+        t.imitation.episodes = 3000;
+        t.imitation.epochs = 50;
+        t.rl.episodes = 10_000;
+        t.rl.epsilon_decay_episodes = 4000;
+        t.rl.batches_per_episode = 100;
+        t.validation_every_episodes = 500;
         // 3000 × 50 imitation (50 full epochs of 2.6 s) + 10,000 × 0.35 s + (20 validations ×
         // 100 + 500) test episodes.
         let fresh = 130.0 + 10_000.0 * 0.35 + 2500.0 * TEST_EPISODE_S;

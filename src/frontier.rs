@@ -86,7 +86,7 @@ pub fn read_run(run: &Path, assumed: &Assumed, min_success: f64) -> anyhow::Resu
         )
     } else if !metrics.is_file() {
         bail!(
-            "{}: not a run directory (no config.toml or metrics.jsonl; `fsrl plot frontier` takes the run directories of `fsrl train --single-process` or `fsrl reproduce`)",
+            "{}: not a run directory (no config.toml or metrics.jsonl; `fsrl plot frontier` takes the run directories of `fsrl train` or `fsrl reproduce`)",
             run.display()
         );
     } else {

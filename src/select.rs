@@ -15,15 +15,7 @@ use policy::method::{Select, LOW_DISC_MIN_SUCCESS};
 
 use crate::config::FileConfig;
 
-/// The directory of a run's validation snapshots.
-pub fn snapshot_dir(run_dir: &Path) -> PathBuf {
-    run_dir.join("checkpoints").join("validation")
-}
-
-/// The snapshot file of the validation after `rl_episodes` RL episodes.
-pub fn snapshot_path(run_dir: &Path, rl_episodes: u64) -> PathBuf {
-    snapshot_dir(run_dir).join(format!("ep-{rl_episodes:06}.fsrlm"))
-}
+pub use learner::model::{snapshot_dir, snapshot_path};
 
 /// One validation of a run, as its `metrics.jsonl` line records it.
 #[derive(Debug, Clone, PartialEq)]

@@ -329,19 +329,79 @@ fn best_validation_selection_keeps_snapshots_and_the_run_uses_the_best() {
         "{stderr}"
     );
 
-    // A distributed run cannot select (its evaluator keeps no weights): refused before it starts.
+    // The same rule in a distributed run: the evaluator process keeps each validated snapshot
+    // (before its line), the run's policy is chosen from them as in one process, and run.json
+    // says which mode made the run and the replay ratio the learner realised.
+    let dist = dir.path().join("dist");
     let o = fsrl()
-        .args(["train", "--config"])
+        .args([
+            "train",
+            "--method",
+            "sarl",
+            "--setting",
+            "env2-visible",
+            "--actors",
+            "2",
+        ])
+        .args([
+            "--il-episodes",
+            "8",
+            "--il-epochs",
+            "2",
+            "--eval-episodes",
+            "4",
+        ])
+        .args(["--rl-episodes", "6", "--config"])
         .arg(&cfg)
         .arg("--out")
-        .arg(dir.path().join("dist"))
+        .arg(&dist)
         .output()
         .unwrap();
-    assert!(!o.status.success());
     let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{stderr}");
+    let lines: Vec<serde_json::Value> = std::fs::read_to_string(dist.join("metrics.jsonl"))
+        .unwrap()
+        .lines()
+        .map(|l| serde_json::from_str::<serde_json::Value>(l).unwrap())
+        .collect();
+    let validated: Vec<u64> = lines
+        .iter()
+        .filter(|v| v["phase"] == "validation")
+        .map(|v| v["episode"].as_u64().unwrap())
+        .collect();
     assert!(
-        stderr.contains("best-validation") && stderr.contains("--single-process"),
-        "{stderr}"
+        validated.first() == Some(&0) && validated.last() == Some(&6),
+        "the first and the final weights are validated: {validated:?}"
     );
-    assert!(!dir.path().join("dist").exists());
+    for ep in &validated {
+        let snap = dist.join(format!("checkpoints/validation/ep-{ep:06}.fsrlm"));
+        assert!(snap.is_file(), "missing {}", snap.display());
+    }
+    assert!(
+        stderr.contains("train.select = \"best-validation\": the snapshot after"),
+        "the final evaluation uses the chosen snapshot: {stderr}"
+    );
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dist.join("report.json")).unwrap()).unwrap();
+    assert_eq!(report["settings"][0]["setting"], "env2-visible");
+    assert_eq!(report["settings"][0]["episodes"], 4);
+    let run: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dist.join("run.json")).unwrap()).unwrap();
+    assert_eq!(run["mode"], "distributed", "{run}");
+    assert_eq!(run["learner_updates_per_episode"], 20.0, "{run}");
+    // export-model works on the distributed run as on the single-process one.
+    let o = fsrl()
+        .arg("export-model")
+        .arg(&dist)
+        .arg("--out")
+        .arg(dir.path().join("d.fsrlm"))
+        .args(["--check-episodes", "1"])
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        o.status.success() && stdout.contains("chosen by train.select = \"best-validation\""),
+        "{stdout}{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
 }

@@ -1027,28 +1027,66 @@ fn imitation_learning_rate(printed: &str) -> f64 {
         .expect("train.imitation.learning_rate is a number")
 }
 
+/// The `[train]` table of a `check-config --print` output.
+fn printed_train(printed: &str) -> toml::Table {
+    let start = printed.find("\n[").expect("a TOML table after the ok line") + 1;
+    let t: toml::Table = printed[start..]
+        .parse()
+        .expect("check-config --print is TOML");
+    t["train"].as_table().expect("a [train] table").clone()
+}
+
+/// One default schedule: `fsrl check-config --print` without a file shows the built-in
+/// defaults, `configs/fast.toml` spells out exactly those, and `configs/paper.toml` is the
+/// paper's schedule.
 #[test]
-fn a_config_that_selects_a_snapshot_is_valid_and_noted_as_single_process_only() {
-    let fast = Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/fast.toml");
-    let local = deploy().join("local.toml");
-    let o = fsrl(&[
-        "check-config",
-        &fast.to_string_lossy(),
-        &local.to_string_lossy(),
-    ]);
-    let out = String::from_utf8_lossy(&o.stdout);
-    assert!(o.status.success(), "{out}");
-    let notes: Vec<&str> = out.lines().filter(|l| l.contains("note:")).collect();
-    assert_eq!(notes.len(), 1, "one note, for fast.toml only: {out}");
-    assert!(
-        notes[0].contains("train.select = \"low-disc\"") && notes[0].contains("--single-process"),
-        "{out}"
-    );
-    let first_ok = out.lines().position(|l| l.starts_with("ok: ")).unwrap();
-    let note = out.lines().position(|l| l.contains("note:")).unwrap();
-    assert_eq!(
-        note,
-        first_ok + 1,
-        "the note follows fast.toml's line: {out}"
-    );
+fn the_default_schedule_is_configs_fast_and_the_paper_schedule_is_one_file_away() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let print = |file: Option<&Path>| -> toml::Table {
+        let mut args = vec!["check-config".to_string(), "--print".to_string()];
+        if let Some(f) = file {
+            args.push(f.to_string_lossy().into_owned());
+        }
+        let args: Vec<&str> = args.iter().map(|a| a.as_str()).collect();
+        let o = fsrl(&args);
+        let out = String::from_utf8_lossy(&o.stdout);
+        assert!(
+            o.status.success(),
+            "{out}{}",
+            String::from_utf8_lossy(&o.stderr)
+        );
+        printed_train(&out)
+    };
+    let defaults = print(None);
+    assert_eq!(print(Some(&root.join("configs/fast.toml"))), defaults);
+    let get = |t: &toml::Table, path: &[&str]| -> toml::Value {
+        let mut v = toml::Value::Table(t.clone());
+        for k in path {
+            v = v[*k].clone();
+        }
+        v
+    };
+    for (path, value) in [
+        (&["imitation", "episodes"][..], toml::Value::Integer(1000)),
+        (&["imitation", "epochs"], toml::Value::Integer(30)),
+        (&["rl", "episodes"], toml::Value::Integer(5000)),
+        (&["rl", "batches_per_episode"], toml::Value::Integer(20)),
+        (&["select"], toml::Value::String("low-disc".into())),
+    ] {
+        assert_eq!(get(&defaults, path), value, "default {path:?}");
+    }
+    let paper = print(Some(&root.join("configs/paper.toml")));
+    for (path, value) in [
+        (&["imitation", "episodes"][..], toml::Value::Integer(3000)),
+        (&["imitation", "epochs"], toml::Value::Integer(50)),
+        (&["rl", "episodes"], toml::Value::Integer(10_000)),
+        (
+            &["rl", "epsilon_decay_episodes"],
+            toml::Value::Integer(4000),
+        ),
+        (&["rl", "batches_per_episode"], toml::Value::Integer(100)),
+        (&["select"], toml::Value::String("last".into())),
+    ] {
+        assert_eq!(get(&paper, path), value, "paper {path:?}");
+    }
 }

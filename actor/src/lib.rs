@@ -19,9 +19,70 @@ use proto::{keys, Metrics, Role, RunPhase, TransitionBatch};
 use sim::Env;
 use transport::{AliveEvent, Transport, TransportError};
 
-/// Episode-seed stream of actor `id` (streams 0 and 1 belong to the single-process trainer).
+/// Episode-seed stream of actor `id` (stream 0 is the demonstrator's, 1 the single-process
+/// mode's one in-process actor, [`LOCKSTEP_STREAM`]).
 pub fn actor_stream(id: u32) -> u64 {
     100 + id as u64
+}
+
+/// Episode-seed stream of the in-process actor of a single-process run (kept at 1, so that
+/// runs trained before the modes shared this code replay bit for bit).
+pub const LOCKSTEP_STREAM: u64 = 1;
+
+/// An actor's episode loop without the transport: the run's environment and lookahead, playing
+/// one RL episode at a time with the given weights and ε. The actor process and the
+/// single-process mode (`trainer::run`) both act through it.
+pub struct Player {
+    env: Env,
+    lookahead: Lookahead,
+    run_seed: u64,
+}
+
+impl Player {
+    pub fn new(spec: &RunSpec) -> Result<Self, ActorError> {
+        let env = Env::new(spec.method_sim(), spec.setting, 0)
+            .map_err(|e| ActorError::Sim(e.to_string()))?;
+        let lookahead = Lookahead::new(
+            spec.train.gamma,
+            spec.train.human_model.into(),
+            spec.method.human_order(),
+        )
+        .with_terminal_previews(spec.train.terminal_previews);
+        Ok(Self {
+            env,
+            lookahead,
+            run_seed: spec.seed,
+        })
+    }
+
+    /// Actions in the run's action set.
+    pub fn n_actions(&self) -> usize {
+        self.env.action_set().len()
+    }
+
+    /// Episode `episode` of seed stream `stream`, acting ε-greedily with `net` (weights
+    /// `version`).
+    pub fn play(
+        &mut self,
+        stream: u64,
+        episode: u64,
+        net: &ValueNet,
+        version: u64,
+        epsilon: f64,
+    ) -> Result<policy::rollout::EpisodeData, ActorError> {
+        let seed = episode_seed(self.run_seed, stream, episode);
+        rollout(
+            &mut self.env,
+            seed,
+            Behaviour::Net {
+                net,
+                lookahead: &mut self.lookahead,
+                epsilon,
+                policy_version: version,
+            },
+        )
+        .map_err(|e| ActorError::Sim(e.to_string()))
+    }
 }
 
 /// Why an actor stopped with an error.
@@ -57,6 +118,36 @@ pub struct ActorStats {
     /// Time spent simulating episodes, and waiting (no learner, no weights, no credit).
     pub sim: Duration,
     pub wait: Duration,
+    /// Publications of an episode that timed out (the learner did not drain in time, e.g.
+    /// while it wrote a checkpoint on a busy machine): the episode stays in the outbox and is
+    /// sent again; never fatal.
+    pub publish_timeouts: u64,
+}
+
+/// Publishes one episode; a publication that times out is counted and logged (at powers of
+/// two) and reported as `Ok(false)`: the episode is in the outbox and goes again with the next
+/// re-send. Any other transport error is returned.
+fn send(
+    publisher: &transport::Publisher<TransitionBatch>,
+    version: u64,
+    batch: &TransitionBatch,
+    stats: &mut ActorStats,
+) -> Result<bool, TransportError> {
+    match publisher.publish(version, batch) {
+        Ok(_) => Ok(true),
+        Err(e @ TransportError::PublishTimeout { .. }) => {
+            stats.publish_timeouts += 1;
+            if stats.publish_timeouts.is_power_of_two() {
+                tracing::warn!(
+                    episode = batch.episode,
+                    count = stats.publish_timeouts,
+                    "{e}; the episode stays in the outbox and is sent again (logged at powers of two of the count)"
+                );
+            }
+            Ok(false)
+        }
+        Err(e) => Err(e),
+    }
 }
 
 struct State {
@@ -86,7 +177,10 @@ impl State {
     ) -> Result<(), TransportError> {
         for (ep, batch) in &self.outbox {
             let v = self.outbox_versions.get(ep).copied().unwrap_or(0);
-            publisher.publish(v, batch)?;
+            if !send(publisher, v, batch, stats)? {
+                // The learner is not draining: the rest waits for the next re-send.
+                break;
+            }
             stats.resent += 1;
         }
         self.resend_at = (!self.outbox.is_empty()).then(|| Instant::now() + RESEND_AFTER);
@@ -143,15 +237,8 @@ pub fn run(
     let metrics = transport.publisher(&keys::metrics(&run, transport.sender()))?;
     let _token = transport.declare_alive()?;
 
-    let cfg = spec.method_sim();
-    let mut env = Env::new(cfg, spec.setting, 0).map_err(|e| ActorError::Sim(e.to_string()))?;
-    let n_actions = env.action_set().len() as u16;
-    let mut lookahead = Lookahead::new(
-        spec.train.gamma,
-        spec.train.human_model.into(),
-        spec.method.human_order(),
-    )
-    .with_terminal_previews(spec.train.terminal_previews);
+    let mut player = Player::new(spec)?;
+    let n_actions = player.n_actions() as u16;
     let mut st = State {
         outbox: BTreeMap::new(),
         outbox_versions: BTreeMap::new(),
@@ -251,26 +338,15 @@ pub fn run(
         let episode = st.next_episode.expect("ready implies a start index");
         let (version, net) = st.net.as_ref().expect("ready implies weights");
         let epsilon = ctl.as_ref().map_or(0.0, |c| c.body.epsilon as f64);
-        let seed = episode_seed(spec.seed, actor_stream(id), episode);
         let t0 = Instant::now();
-        let data = rollout(
-            &mut env,
-            seed,
-            Behaviour::Net {
-                net,
-                lookahead: &mut lookahead,
-                epsilon,
-                policy_version: *version,
-            },
-        )
-        .map_err(|e| ActorError::Sim(e.to_string()))?;
+        let data = player.play(actor_stream(id), episode, net, *version, epsilon)?;
         stats.sim += t0.elapsed();
         let batch =
             to_batch(&data, episode, n_actions).map_err(|e| ActorError::Sim(e.to_string()))?;
         let version = *version;
         // A learner that joined during the episode gets the outbox first, in order.
         st.on_membership(&alive, &publisher, &mut stats, id)?;
-        publisher.publish(version, &batch)?;
+        send(&publisher, version, &batch, &mut stats)?;
         st.outbox.insert(episode, batch);
         st.outbox_versions.insert(episode, version);
         st.resend_at
@@ -330,6 +406,7 @@ fn publish_metrics(
         ("weights_version", s.weights_version as f64),
         ("bad_weights", s.bad_weights as f64),
         ("sim_s", s.sim.as_secs_f64()),
+        ("publish_timeouts", s.publish_timeouts as f64),
         ("wait_s", s.wait.as_secs_f64()),
     ] {
         m.values.insert(k.to_string(), v);

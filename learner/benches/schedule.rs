@@ -88,7 +88,13 @@ fn main() {
         .ok()
         .and_then(|v| v.parse().ok())
         .unwrap_or(200);
-    let train = TrainConfig::default();
+    // The paper's schedule (configs/paper.toml), not the default short one.
+    let mut train = TrainConfig::default();
+    train.imitation.episodes = 3000;
+    train.imitation.epochs = 50;
+    train.rl.episodes = 10_000;
+    train.rl.epsilon_decay_episodes = 4000;
+    train.rl.batches_per_episode = 100;
     let spec = RunSpec {
         method: Method::Fsrl,
         setting: "env1-invisible".parse().unwrap(),

@@ -15,8 +15,22 @@ pub const DEMO_STREAM: u64 = 0;
 /// Progress of the warm start.
 #[derive(Debug, Clone, Copy)]
 pub enum ImitationProgress {
-    Demo { done: u64, total: u64 },
-    Epoch { done: u32, total: u32, loss: f32 },
+    Demo {
+        done: u64,
+        total: u64,
+    },
+    /// The demonstrations are in replay: their transitions and the mean and variance of their
+    /// Monte-Carlo returns (an imitation loss means little without the spread of its targets).
+    DemosDone {
+        transitions: usize,
+        target_mean: f64,
+        target_var: f64,
+    },
+    Epoch {
+        done: u32,
+        total: u32,
+        loss: f32,
+    },
 }
 
 /// Runs demonstrations and imitation epochs, then switches `core` to RL. Returns `Ok(false)`
@@ -47,6 +61,19 @@ pub fn run(
             return Ok(false);
         }
     }
+    let returns = core.replay().columns().returns;
+    let n = returns.len().max(1) as f64;
+    let target_mean = returns.iter().map(|&r| r as f64).sum::<f64>() / n;
+    let target_var = returns
+        .iter()
+        .map(|&r| (r as f64 - target_mean).powi(2))
+        .sum::<f64>()
+        / n;
+    progress(ImitationProgress::DemosDone {
+        transitions: core.replay().len(),
+        target_mean,
+        target_var,
+    });
     let total = il.epochs;
     core.imitation(total, |epoch, loss| {
         progress(ImitationProgress::Epoch {

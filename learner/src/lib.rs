@@ -10,6 +10,7 @@ pub mod imitation;
 pub mod model;
 pub mod process;
 pub mod replay;
+pub mod runlog;
 pub mod store;
 pub mod wal;
 

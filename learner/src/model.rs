@@ -36,6 +36,17 @@ const MAGIC: &[u8; 8] = b"FSRLMODL";
 pub const FORMAT_VERSION: u32 = 1;
 /// The conventional file extension (without the dot); readers go by content, not by name.
 pub const EXTENSION: &str = "fsrlm";
+/// The directory of a run's validation snapshots (`train.select`): the trainer of a
+/// single-process run and the evaluator process of a distributed one write them.
+pub fn snapshot_dir(run_dir: &Path) -> PathBuf {
+    run_dir.join("checkpoints").join("validation")
+}
+
+/// The snapshot file of the validation after `rl_episodes` RL episodes.
+pub fn snapshot_path(run_dir: &Path, rl_episodes: u64) -> PathBuf {
+    snapshot_dir(run_dir).join(format!("ep-{rl_episodes:06}.{EXTENSION}"))
+}
+
 /// Check episodes recorded by default, seeds [`DEFAULT_CHECK_SEED_START`]`..`.
 pub const DEFAULT_CHECK_EPISODES: u32 = 20;
 /// The first test seed (CrowdNav's test seeds start at 1000).

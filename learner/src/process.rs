@@ -135,6 +135,14 @@ struct Learner<'a> {
     train: Duration,
     last_loss: f32,
     sim_cfg: sim::SimConfig,
+    /// The run's training log (`metrics.jsonl`): one line per RL episode trained, as the
+    /// single-process mode writes it; `wall0` is the clock of the log's earlier lines.
+    log: std::fs::File,
+    wall0: Duration,
+    /// The last stored episode: outcome, steps, return, ε of its index (for its log line).
+    stored: Option<(Outcome, u32, f64, f64)>,
+    /// Log lines that could not be written (a full disk): counted, never fatal.
+    log_failures: u64,
 }
 
 impl Learner<'_> {
@@ -380,6 +388,7 @@ impl Learner<'_> {
             ("wal_failures", self.wal_failures as f64),
             ("checkpoint_failures", self.checkpoint_failures as f64),
             ("publish_failures", self.publish_failures as f64),
+            ("log_failures", self.log_failures as f64),
             ("skipped_batches", self.core.skipped_batches() as f64),
             ("actors_alive", self.actors_alive.len() as f64),
             ("imitation_done", if c.imitation_done { 1.0 } else { 0.0 }),
@@ -387,6 +396,45 @@ impl Learner<'_> {
             m.values.insert(k.to_string(), v);
         }
         self.metrics.publish(c.policy_version, &m)?;
+        Ok(())
+    }
+
+    /// Trains on the episode just stored (`batches_per_episode` updates) and logs its line.
+    fn train_stored(&mut self) -> Result<(), ProcessError> {
+        let trained = Instant::now();
+        self.last_loss = self.core.train_rl(self.spec.train.rl.batches_per_episode)?;
+        self.train += trained.elapsed();
+        if let Some(last) = self.window.losses.back_mut() {
+            *last = self.last_loss;
+        }
+        let Some((outcome, steps, return_sum, epsilon)) = self.stored.take() else {
+            return Ok(());
+        };
+        let c = self.core.counters();
+        let line = crate::runlog::RlLine {
+            phase: "rl",
+            episode: c.rl_episodes - 1,
+            epsilon,
+            outcome: outcome.name(),
+            steps,
+            return_sum,
+            loss: self.last_loss,
+            success_rate_window: self.window.rate(Outcome::ReachGoal),
+            collision_rate_window: self.window.rate(Outcome::Collision),
+            timeout_rate_window: self.window.rate(Outcome::Timeout),
+            policy_version: c.policy_version,
+            env_steps: c.env_steps,
+            replay_size: self.core.replay().len(),
+            wall_s: (self.wall0 + self.start.elapsed()).as_secs_f64(),
+        };
+        if let Err(e) = crate::runlog::append(&mut self.log, &line) {
+            self.log_failures += 1;
+            warn_sometimes(
+                "log",
+                self.log_failures,
+                format_args!("metrics.jsonl: a line was not written: {e}"),
+            );
+        }
         Ok(())
     }
 
@@ -478,8 +526,10 @@ impl Learner<'_> {
                 return Accepted::Refused;
             }
         }
+        let epsilon = self.core.epsilon();
         self.core.commit_episode(prepared);
         self.accepted_below.insert(actor, next);
+        self.stored = Some((ep.outcome, ep.summary.steps, ep.summary.return_sum, epsilon));
         let lag = self.core.counters().policy_version.saturating_sub(version);
         self.window.push(ep.outcome, lag, self.last_loss);
         if log {
@@ -536,6 +586,7 @@ pub fn run(
         setting: spec.setting.name().to_string(),
         run_seed: spec.seed,
     };
+    let log_path = opts.run_dir.join("metrics.jsonl");
     let (core, accepted_below) = match store.load_checkpoint(&expected)? {
         Some(loaded) => {
             tracing::info!(
@@ -557,6 +608,21 @@ pub fn run(
         }
     };
     let (_lock, wal, wal_records) = store.into_parts();
+    // The log goes back to the checkpoint (the log's episodes after it are replayed below and
+    // logged again); without a checkpoint the run starts again from nothing.
+    let (rl_done, trim) = if core.counters().imitation_done || core.counters().rl_episodes > 0 {
+        (core.counters().rl_episodes, crate::runlog::Trim::Rl)
+    } else {
+        (0, crate::runlog::Trim::Restart)
+    };
+    crate::runlog::trim(&log_path, rl_done, trim)
+        .map_err(io(format!("cannot rewrite {}", log_path.display())))?;
+    let wall0 = crate::runlog::last_wall(&log_path);
+    let log = std::fs::OpenOptions::new()
+        .create(true)
+        .append(true)
+        .open(&log_path)
+        .map_err(io(format!("cannot open {}", log_path.display())))?;
     let subscriber = transport.subscriber(&keys::all_transitions(&run))?;
     let alive = transport.watch_alive()?;
     let mut l = Learner {
@@ -590,6 +656,10 @@ pub fn run(
         train: Duration::ZERO,
         last_loss: f32::NAN,
         sim_cfg,
+        log,
+        wall0,
+        stored: None,
+        log_failures: 0,
     };
     // Episodes acknowledged after the last checkpoint: back from the log, trained on again;
     // those the checkpoint already holds (a crash before the log was emptied) are dropped. The
@@ -604,7 +674,7 @@ pub fn run(
             msg.header.policy_version,
             false,
         )? {
-            l.last_loss = l.core.train_rl(spec.train.rl.batches_per_episode)?;
+            l.train_stored()?;
             replayed += 1;
         }
     }
@@ -629,7 +699,23 @@ pub fn run(
         let mut last = Instant::now();
         let metrics = transport.publisher(&keys::metrics(&run, transport.sender()))?;
         let mut refused = 0u64;
+        // The imitation lines of the log (written once the warm start is done, as in one
+        // process): each epoch's loss against the spread of the demonstrations' returns.
+        let mut targets = (0.0, 0.0);
+        let mut epochs = Vec::new();
+        let (wall0, start) = (l.wall0, l.start);
         let finished = imitation::run(&mut l.core, spec, stop, |p| {
+            match p {
+                ImitationProgress::DemosDone {
+                    target_mean,
+                    target_var,
+                    ..
+                } => targets = (target_mean, target_var),
+                ImitationProgress::Epoch { done, loss, .. } => {
+                    epochs.push((done - 1, loss, (wall0 + start.elapsed()).as_secs_f64()));
+                }
+                ImitationProgress::Demo { .. } => {}
+            }
             // Nobody should send episodes now (actors wait for the training phase): drain and
             // count, so nothing piles up in the subscriber's queue during imitation.
             while let Ok(Some(msg)) = subscriber.try_recv() {
@@ -651,6 +737,7 @@ pub fn run(
                         m.values.insert("demo_episodes".into(), done as f64);
                         m.values.insert("demo_target".into(), total as f64);
                     }
+                    ImitationProgress::DemosDone { .. } => {}
                     ImitationProgress::Epoch { done, total, loss } => {
                         m.values.insert("imitation_epoch".into(), done as f64);
                         m.values.insert("imitation_epochs".into(), total as f64);
@@ -665,6 +752,18 @@ pub fn run(
         l.refused_in_imitation = refused;
         if !finished {
             return Ok(LearnerExit::Stopped);
+        }
+        let (mean, target_var) = targets;
+        for (epoch, loss, wall_s) in epochs {
+            let line = serde_json::json!({"phase": "imitation", "epoch": epoch, "loss": loss, "target_mean": mean, "target_var": target_var, "wall_s": wall_s});
+            if let Err(e) = crate::runlog::append(&mut l.log, &line) {
+                l.log_failures += 1;
+                warn_sometimes(
+                    "log",
+                    l.log_failures,
+                    format_args!("metrics.jsonl: a line was not written: {e}"),
+                );
+            }
         }
         l.checkpoint()?;
         tracing::info!(transitions = l.core.replay().len(), "imitation done");
@@ -750,12 +849,7 @@ pub fn run(
         if accepted != Accepted::Stored {
             continue;
         }
-        let trained = Instant::now();
-        l.last_loss = l.core.train_rl(spec.train.rl.batches_per_episode)?;
-        l.train += trained.elapsed();
-        if let Some(last) = l.window.losses.back_mut() {
-            *last = l.last_loss;
-        }
+        l.train_stored()?;
         l.publish_weights()?;
         l.publish_control();
         let done = l.core.counters().rl_episodes;

@@ -1,0 +1,120 @@
+//! The two ways to run one training, end to end, in one run of this benchmark: `fsrl train
+//! --single-process` against `fsrl train` (a learner, actors and an evaluator as processes, the
+//! iceoryx2 data plane), FSRL on env1-invisible, seed 0, the default (short) schedule, one after
+//! the other with nothing else running. Prints each mode's wall-clock time split into warm
+//! start, RL, validation and final evaluation (from the run's `run.json`), each process's
+//! waiting in the distributed run, and the ratio distributed / single-process (issue 33's target:
+//! ≤ 0.55).
+//!
+//! `cargo bench -p fsrl --bench modes` (about 25 minutes on 2 cores). `FSRL_MODES_RL_EPISODES=N`
+//! shortens the RL phase (and the ε decay to 2/5 of it) for a quick look; `FSRL_MODES_ACTORS`
+//! sets the actors of the distributed run (default 2).
+
+use std::path::Path;
+use std::process::Command;
+use std::time::Instant;
+
+fn run(mode: &[&str], out: &Path, config: Option<&Path>) -> (f64, serde_json::Value) {
+    let mut c = Command::new(env!("CARGO_BIN_EXE_fsrl"));
+    c.args([
+        "train",
+        "--method",
+        "fsrl",
+        "--setting",
+        "env1-invisible",
+        "--seed",
+        "0",
+    ])
+    .args(mode)
+    .arg("--out")
+    .arg(out);
+    if let Some(cfg) = config {
+        c.arg("--config").arg(cfg);
+    }
+    let t = Instant::now();
+    let o = c.output().expect("fsrl runs");
+    let wall = t.elapsed().as_secs_f64();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let run: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("run.json")).unwrap()).unwrap();
+    (wall, run)
+}
+
+fn main() {
+    if std::env::args().any(|a| a == "--list") {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let config = std::env::var("FSRL_MODES_RL_EPISODES")
+        .ok()
+        .and_then(|v| v.parse::<u64>().ok())
+        .map(|n| {
+            let p = dir.path().join("short.toml");
+            std::fs::write(
+                &p,
+                format!(
+                    "[train.rl]\nepisodes = {n}\nepsilon_decay_episodes = {}\n",
+                    (n * 2 / 5).max(1)
+                ),
+            )
+            .unwrap();
+            p
+        });
+    let actors = std::env::var("FSRL_MODES_ACTORS").unwrap_or_else(|_| "2".into());
+    let load = || {
+        std::fs::read_to_string("/proc/loadavg")
+            .unwrap_or_default()
+            .split_whitespace()
+            .take(3)
+            .collect::<Vec<_>>()
+            .join(" ")
+    };
+    println!(
+        "modes: FSRL env1-invisible seed 0, default schedule{}; load average before {}",
+        config
+            .as_ref()
+            .map_or(String::new(), |_| " (RL shortened)".into()),
+        load()
+    );
+    let (single_wall, single) = run(
+        &["--single-process"],
+        &dir.path().join("single"),
+        config.as_deref(),
+    );
+    println!("load average after the single-process run: {}", load());
+    let (dist_wall, dist) = run(
+        &["--actors", &actors],
+        &dir.path().join("distributed"),
+        config.as_deref(),
+    );
+    println!("load average after the distributed run: {}", load());
+    let f = |v: &serde_json::Value, k: &str| v.get(k).and_then(|x| x.as_f64()).unwrap_or(f64::NAN);
+    println!("| part (s) | single-process | distributed ({actors} actors) |");
+    println!("|---|---|---|");
+    for k in [
+        "warm_start_s",
+        "rl_s",
+        "validation_s",
+        "final_evaluation_s",
+        "total_s",
+    ] {
+        println!("| {k} | {:.1} | {:.1} |", f(&single, k), f(&dist, k));
+    }
+    println!("| wall clock of the command | {single_wall:.1} | {dist_wall:.1} |");
+    for k in [
+        "learner_wait_s",
+        "learner_train_s",
+        "learner_updates_per_episode",
+        "learner_policy_lag_mean",
+        "learner_policy_lag_p95",
+        "actors_sim_s",
+        "actors_wait_s",
+        "evaluator_wait_s",
+    ] {
+        println!("| {k} | – | {:.2} |", f(&dist, k));
+    }
+    println!(
+        "distributed / single-process, end to end: {:.3} (target <= 0.55)",
+        dist_wall / single_wall
+    );
+}
