@@ -4,7 +4,10 @@
 //! the other with nothing else running. Prints each mode's wall-clock time split into warm
 //! start, RL, validation and final evaluation (from the run's `run.json`), each process's
 //! waiting in the distributed run, and the ratio distributed / single-process (issue 33's target:
-//! ≤ 0.55).
+//! ≤ 0.55). At the default schedule the single-process run is also exported and compared byte
+//! for byte with the shipped `models/fsrl-env1-invisible-s0.fsrlm` (the run directory has the
+//! shipped run's name, which the model records): the single-process mode still trains what was
+//! shipped.
 //!
 //! `cargo bench -p fsrl --bench modes` (about 25 minutes on 2 cores). `FSRL_MODES_RL_EPISODES=N`
 //! shortens the RL phase (and the ε decay to 2/5 of it) for a quick look; `FSRL_MODES_ACTORS`
@@ -76,15 +79,33 @@ fn main() {
             .map_or(String::new(), |_| " (RL shortened)".into()),
         load()
     );
-    let (single_wall, single) = run(
-        &["--single-process"],
-        &dir.path().join("single"),
-        config.as_deref(),
-    );
+    let single_dir = dir.path().join("single").join("fsrl-env1-invisible-s0");
+    let (single_wall, single) = run(&["--single-process"], &single_dir, config.as_deref());
+    if config.is_none() {
+        let exported = dir.path().join("single.fsrlm");
+        let o = Command::new(env!("CARGO_BIN_EXE_fsrl"))
+            .arg("export-model")
+            .arg(&single_dir)
+            .arg("--out")
+            .arg(&exported)
+            .output()
+            .expect("fsrl runs");
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let shipped =
+            Path::new(env!("CARGO_MANIFEST_DIR")).join("models/fsrl-env1-invisible-s0.fsrlm");
+        let same = std::fs::read(&exported).ok() == std::fs::read(&shipped).ok();
+        println!(
+            "single-process model byte-identical to the shipped {}: {}",
+            shipped.display(),
+            if same { "yes" } else { "NO" }
+        );
+    }
     println!("load average after the single-process run: {}", load());
     let (dist_wall, dist) = run(
         &["--actors", &actors],
-        &dir.path().join("distributed"),
+        &dir.path()
+            .join("distributed")
+            .join("fsrl-env1-invisible-s0"),
         config.as_deref(),
     );
     println!("load average after the distributed run: {}", load());

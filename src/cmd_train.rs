@@ -107,7 +107,7 @@ pub struct TrainArgs {
     /// Test episodes of the final evaluation [default: 500]
     #[arg(long)]
     pub eval_episodes: Option<u32>,
-    /// Checkpoint every N RL episodes [default: 1000]
+    /// Checkpoint every N RL episodes [default: 500]
     #[arg(long)]
     pub checkpoint_every: Option<u64>,
     /// Run directory [default: runs/<method>-<setting>-s<seed>]

@@ -24,13 +24,13 @@ pub struct RunOverrides {
     /// Run seed [default: 0]
     #[arg(long)]
     pub seed: Option<u64>,
-    /// Demonstration episodes for imitation learning [default: 3000]
+    /// Demonstration episodes for imitation learning [default: 1000; paper: 3000]
     #[arg(long)]
     pub il_episodes: Option<u64>,
-    /// Imitation epochs [default: 50]
+    /// Imitation epochs [default: 30; paper: 50]
     #[arg(long)]
     pub il_epochs: Option<u32>,
-    /// RL episodes [default: 10000]
+    /// RL episodes [default: 5000; paper: 10000]
     #[arg(long)]
     pub rl_episodes: Option<u64>,
 }

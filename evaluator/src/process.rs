@@ -36,6 +36,15 @@ pub struct EvaluatorOptions {
 /// writes a model file; the evaluator crate knows no file format of the learner's.
 pub type KeepSnapshot<'a> = &'a dyn Fn(&policy::ValueNet, u64, u64) -> Result<(), String>;
 
+/// The first multiple of `every` after `trained` (computed, not counted up to: a weights
+/// message with a huge version costs no loop; saturates at `u64::MAX`).
+pub fn due_after(trained: u64, every: u64) -> u64 {
+    if every == 0 {
+        return u64::MAX;
+    }
+    (trained / every).saturating_add(1).saturating_mul(every)
+}
+
 /// Where a resumed evaluator goes on: the first validation due after the last one in
 /// `validation.jsonl` of `out_dir` (0 without one); a line that does not parse is skipped.
 pub fn next_validation_due(out_dir: &std::path::Path, every: u64) -> u64 {
@@ -49,7 +58,7 @@ pub fn next_validation_due(out_dir: &std::path::Path, every: u64) -> u64 {
         .max();
     match (last, every) {
         (None, _) | (_, 0) => 0,
-        (Some(ep), every) => (ep / every + 1).saturating_mul(every),
+        (Some(ep), every) => due_after(ep, every),
     }
 }
 
@@ -385,9 +394,7 @@ pub fn run(
                 .insert("wait_s".into(), (wall - busy.as_secs_f64()).max(0.0));
             metrics.publish(version, &m)?;
             validated = Some(version);
-            while next_val_due <= trained {
-                next_val_due += val_every;
-            }
+            next_val_due = due_after(trained, val_every);
         }
         if finished && !opts.final_report {
             return Ok(EvaluatorExit::Finished(None));
@@ -420,8 +427,8 @@ pub fn run(
             version,
         )?;
         evaluated = Some(version);
-        while next_due <= trained && opts.every_episodes > 0 {
-            next_due += opts.every_episodes;
+        if opts.every_episodes > 0 {
+            next_due = due_after(trained, opts.every_episodes);
         }
         if finished {
             write(opts, "report", &r, spec.method.name(), version)?;
@@ -455,5 +462,15 @@ mod tests {
         assert_eq!(next_validation_due(dir.path(), 250), 750);
         // No validations configured: nothing is due.
         assert_eq!(next_validation_due(dir.path(), 0), 0);
+    }
+
+    #[test]
+    fn the_next_due_point_is_computed_even_for_a_huge_version() {
+        assert_eq!(due_after(0, 250), 250);
+        assert_eq!(due_after(249, 250), 250);
+        assert_eq!(due_after(250, 250), 500);
+        // A rogue version near u64::MAX: no loop, no overflow.
+        assert_eq!(due_after(u64::MAX - 3, 250), u64::MAX);
+        assert_eq!(due_after(7, 0), u64::MAX);
     }
 }

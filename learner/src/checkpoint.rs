@@ -26,9 +26,8 @@ use policy::ValueNet;
 use sim::SimConfig;
 
 use crate::core::{Counters, LearnerCore};
-use crate::frame::{self, FrameError};
+use crate::frame::{self, FrameError, Probe};
 use crate::replay::{Columns, Replay};
-use crate::store::Probe;
 
 pub(crate) const MAGIC: &[u8; 8] = b"FSRLCKPT";
 /// Bumped whenever the payload changes incompatibly.

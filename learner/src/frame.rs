@@ -14,12 +14,70 @@
 //! supersedes be dropped (the learner truncates its write-ahead log after a checkpoint). If
 //! writing or syncing fails (a full disk), the partial temporary file is removed and the target
 //! is untouched.
+//!
+//! Every file-system step of a durable write, here and in the write-ahead log, is reported to a
+//! [`Probe`] ([`Op`]), through which tests model power losses and full disks. This module is
+//! the bottom of the learner's storage: `wal` and `checkpoint` stand on it, `store` on those
+//! (and re-exports [`Op`] and [`Probe`] as `learner::store::{Op, Probe}`).
 
 use std::fs::File;
 use std::io::Write;
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 
-use crate::store::{Op, Probe};
+/// A file-system step of a durable write, reported to a [`Probe`] right after it happened.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Op<'a> {
+    /// A new empty file was created at the path (any old file there is replaced).
+    Created,
+    /// Bytes were written to the file (not yet synced).
+    Written,
+    /// The file's content and length were synced (`fsync` / `fdatasync`).
+    Synced,
+    /// The file's length was set (cut back), not yet synced.
+    SetLen,
+    /// `from` was renamed to the path (not yet durable: its directory is not synced).
+    Renamed { from: &'a Path },
+    /// The file was removed.
+    Removed,
+    /// The directory at the path was synced: its entries are durable.
+    DirSynced,
+}
+
+type ProbeFn = dyn Fn(Op<'_>, &Path) -> std::io::Result<()> + Send + Sync;
+
+/// Sees every file-system step of a durable write (a whole file put in place, the write-ahead
+/// log, the store; tests model a power loss from it); an error it returns fails the step as the file
+/// system would (tests inject a full disk with it). The learner runs with [`Probe::none`].
+#[derive(Clone, Default)]
+pub struct Probe(Option<Arc<ProbeFn>>);
+
+impl Probe {
+    pub fn none() -> Self {
+        Self(None)
+    }
+
+    pub fn new(f: impl Fn(Op<'_>, &Path) -> std::io::Result<()> + Send + Sync + 'static) -> Self {
+        Self(Some(Arc::new(f)))
+    }
+
+    pub(crate) fn after(&self, op: Op<'_>, path: &Path) -> std::io::Result<()> {
+        match &self.0 {
+            Some(f) => f(op, path),
+            None => Ok(()),
+        }
+    }
+}
+
+impl std::fmt::Debug for Probe {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(if self.0.is_some() {
+            "Probe(..)"
+        } else {
+            "Probe(none)"
+        })
+    }
+}
 
 /// Bytes before the payload.
 pub(crate) const HEADER: usize = 8 + 4 + 8;

@@ -40,7 +40,6 @@ use std::collections::BTreeMap;
 use std::fs::{File, OpenOptions};
 use std::io::{Read, Write};
 use std::path::{Path, PathBuf};
-use std::sync::Arc;
 
 use proto::{Role, TransitionBatch};
 use sim::SimConfig;
@@ -50,59 +49,9 @@ use crate::core::LearnerCore;
 use crate::frame;
 use crate::wal::{Wal, WalError};
 
-/// A file-system step of a durable write, reported to a [`Probe`] right after it happened.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Op<'a> {
-    /// A new empty file was created at the path (any old file there is replaced).
-    Created,
-    /// Bytes were written to the file (not yet synced).
-    Written,
-    /// The file's content and length were synced (`fsync` / `fdatasync`).
-    Synced,
-    /// The file's length was set (cut back), not yet synced.
-    SetLen,
-    /// `from` was renamed to the path (not yet durable: its directory is not synced).
-    Renamed { from: &'a Path },
-    /// The file was removed.
-    Removed,
-    /// The directory at the path was synced: its entries are durable.
-    DirSynced,
-}
-
-type ProbeFn = dyn Fn(Op<'_>, &Path) -> std::io::Result<()> + Send + Sync;
-
-/// Sees every file-system step of the store (tests model a power loss from it); an error it
-/// returns fails the step as the file system would (tests inject a full disk with it). The
-/// learner runs with [`Probe::none`].
-#[derive(Clone, Default)]
-pub struct Probe(Option<Arc<ProbeFn>>);
-
-impl Probe {
-    pub fn none() -> Self {
-        Self(None)
-    }
-
-    pub fn new(f: impl Fn(Op<'_>, &Path) -> std::io::Result<()> + Send + Sync + 'static) -> Self {
-        Self(Some(Arc::new(f)))
-    }
-
-    pub(crate) fn after(&self, op: Op<'_>, path: &Path) -> std::io::Result<()> {
-        match &self.0 {
-            Some(f) => f(op, path),
-            None => Ok(()),
-        }
-    }
-}
-
-impl std::fmt::Debug for Probe {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(if self.0.is_some() {
-            "Probe(..)"
-        } else {
-            "Probe(none)"
-        })
-    }
-}
+/// The file-system steps a test can observe or fail, defined beside the durable writes they
+/// observe (the learner's `frame` module); the store is where callers reach them.
+pub use crate::frame::{Op, Probe};
 
 /// Why the store cannot be opened.
 #[derive(Debug, thiserror::Error)]

@@ -1,6 +1,6 @@
 //! A write-ahead log of accepted episodes: each is appended and synced before the learner
 //! acknowledges it, so an acknowledged episode survives a crash between checkpoints. A
-//! checkpoint (made durable first, see [`crate::store`]) truncates the log.
+//! checkpoint (made durable first: the `store` module above this one) truncates the log.
 //!
 //! # On-disk format (`wal.bin`, format version 1)
 //!
@@ -40,8 +40,7 @@ use std::fs::{File, OpenOptions};
 use std::io::Write;
 use std::path::{Path, PathBuf};
 
-use crate::frame;
-use crate::store::{Op, Probe};
+use crate::frame::{self, Op, Probe};
 
 /// The first bytes of every log.
 pub const MAGIC: &[u8; 8] = b"FSRLWAL\0";

@@ -154,8 +154,9 @@ fn a_short_rl_run_keeps_the_loss_finite_and_moves_the_weights() {
     assert_eq!(c.rl_episodes, 6);
     assert_eq!(c.demo_episodes, 20);
     assert!(c.imitation_done);
-    // ε decays linearly from 0.5 over 4000 episodes.
-    assert!((core.epsilon() - (0.5 - 0.4 * 6.0 / 4000.0)).abs() < 1e-12);
+    // ε decays linearly from 0.5 over the schedule's decay episodes.
+    let decay = core.config().rl.epsilon_decay_episodes as f64;
+    assert!((core.epsilon() - (0.5 - 0.4 * 6.0 / decay)).abs() < 1e-12);
 }
 
 #[test]
