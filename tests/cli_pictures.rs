@@ -11,9 +11,15 @@ use std::path::{Path, PathBuf};
 
 fn train(dir: &Path, method: &str, name: &str) -> PathBuf {
     let out = dir.join(name);
+    // The run's policy is its last weights (these tests are about reports and pictures; the
+    // selection rules have their own tests in cli_train.rs).
+    let last = dir.join("last.toml");
+    std::fs::write(&last, "[train]\nselect = \"last\"\n").unwrap();
     ok(&[
         "train",
         "--single-process",
+        "--config",
+        s(&last),
         "--method",
         method,
         "--setting",

@@ -11,6 +11,7 @@ use std::time::{Duration, Instant, SystemTime};
 const TINY: &str = "\
 [train]
 validation_every_episodes = 0
+select = \"last\"
 eval_episodes = 2
 [train.imitation]
 episodes = 5
@@ -97,6 +98,10 @@ fn a_tiny_grid_is_trained_exported_evaluated_reported_and_then_skipped() {
     let (stdout, stderr) = text(&o);
     assert!(o.status.success(), "{stdout}\n{stderr}");
     let run = dir.join("runs").join(RUN);
+    // Trained by the distributed system (the default): a learner, actors and an evaluator.
+    let mode = json(&run.join("run.json"));
+    assert_eq!(mode["mode"], "distributed", "{mode}");
+    assert_eq!(mode["actors"], 2, "{mode}");
     let model = dir.join("models").join(format!("{RUN}.fsrlm"));
     let eval = dir.join("runs/eval").join(RUN).join("eval.json");
     let orca = dir.join("runs/eval/orca/eval.json");
@@ -247,7 +252,8 @@ fn ctrl_c_checkpoints_the_run_in_training_and_the_same_command_resumes_it() {
         TINY.replace("episodes = 3", "episodes = 100000"),
     )
     .unwrap();
-    let mut child = reproduce(dir, "long.toml", &[])
+    // In one process (the bit-exact path), so that it can run beside the distributed test.
+    let mut child = reproduce(dir, "long.toml", &["--single-process"])
         .stdout(Stdio::null())
         .stderr(Stdio::piped())
         .spawn()

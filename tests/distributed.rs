@@ -496,20 +496,38 @@ fn one_command_local_training_runs_every_process_and_leaves_a_run_directory() {
         "metrics.jsonl",
         "report.md",
         "report.json",
+        "run.json",
+        "processes.jsonl",
         "logs/learner.log",
         "logs/actor-1.log",
         "logs/evaluator.log",
     ] {
         assert!(out.join(f).is_file(), "missing {f}");
     }
+    // The final evaluation is the one of `--single-process`: the run's policy (here, by the
+    // default `low-disc` rule, one of the evaluator's snapshots) on its own setting.
     let r: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
-    assert_eq!(r["settings"].as_array().unwrap().len(), 6);
-    assert_eq!(r["final_snapshot"], true);
+    let settings = r["settings"].as_array().unwrap();
+    assert_eq!(settings.len(), 1, "{r}");
+    assert_eq!(settings[0]["setting"], "env3-visible");
+    assert_eq!(settings[0]["episodes"], 2);
+    let run: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("run.json")).unwrap()).unwrap();
+    assert_eq!(run["mode"], "distributed", "{run}");
+    assert_eq!(run["actors"], 2, "{run}");
     let loaded = learner::checkpoint::load(&out.join("checkpoints/latest.ckpt")).unwrap();
     assert_eq!(loaded.core.counters().rl_episodes, 4);
     let metrics = std::fs::read_to_string(out.join("metrics.jsonl")).unwrap();
-    assert!(metrics.lines().count() >= 1);
+    // The learner's training log: the imitation epoch and one line per RL episode, in order.
+    let rl: Vec<u64> = metrics
+        .lines()
+        .map(|l| serde_json::from_str::<serde_json::Value>(l).unwrap())
+        .filter(|v| v["phase"] == "rl")
+        .map(|v| v["episode"].as_u64().unwrap())
+        .collect();
+    assert_eq!(rl, [0, 1, 2, 3], "{metrics}");
+    assert!(metrics.contains("\"phase\":\"imitation\""), "{metrics}");
     // The learning curve: the evaluator scored the final weights on the validation seeds of the
     // run's setting, and the point reached metrics.jsonl.
     let validation: Vec<serde_json::Value> = metrics
