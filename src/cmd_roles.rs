@@ -135,7 +135,17 @@ pub struct LearnerArgs {
 pub fn learner(args: LearnerArgs) -> anyhow::Result<()> {
     let stop = stop_flag()?;
     let r = args.common.resolve(|_| {})?;
+    // The learner's update threads: every core unless the config says otherwise.
+    let threads = match r.file.learner.threads {
+        0 => std::thread::available_parallelism().map_or(1, |n| n.get()),
+        n => n,
+    };
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build_global()
+        .context("cannot start the learner's update threads")?;
     let t = open_transport(&r, SenderId::new(Role::Learner, 0), &stop)?;
+    tracing::info!(threads, "learner update threads");
     let opts = learner::process::LearnerOptions {
         run_dir: r.run_dir(),
         run_id: r.file.run.id.clone(),

@@ -187,6 +187,9 @@ pub struct LearnerSection {
     pub metrics_interval_ms: u64,
     /// After the run, how long to wait for actors and evaluators to leave.
     pub linger_ms: u64,
+    /// Threads of the learner's updates (each batch is sharded over them; a run is bit-for-bit
+    /// reproducible for a given count). 0: every core of the host.
+    pub threads: usize,
 }
 
 impl Default for LearnerSection {
@@ -196,6 +199,7 @@ impl Default for LearnerSection {
             in_flight_per_actor: 2,
             metrics_interval_ms: 1000,
             linger_ms: 10_000,
+            threads: 0,
         }
     }
 }
