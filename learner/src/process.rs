@@ -553,6 +553,10 @@ enum Accepted {
     Refused,
 }
 
+/// Most received episodes held between rounds of updates (every actor's transport queue is
+/// bounded too; duplicates among them are acknowledged and dropped at once).
+const MAX_PENDING: usize = 4096;
+
 /// Most actor ids a run keeps state for (accepted episodes, credits, ack publishers); more are
 /// refused. Equal to the most credit grants one control message carries.
 const MAX_ACTORS: usize = proto::control::MAX_CREDIT_GRANTS;
@@ -778,6 +782,7 @@ pub fn run(
     let mut last_tick = Instant::now();
     let every = spec.train.checkpoint_every_episodes;
     let mut checkpoint_due = false;
+    let mut pending = VecDeque::new();
 
     while l.phase() == RunPhase::Training {
         if stop.load(Ordering::SeqCst) {
@@ -803,10 +808,24 @@ pub fn run(
                 checkpoint_due = !l.try_checkpoint();
             }
         }
-        let waited = Instant::now();
-        let msg = subscriber.recv_timeout(Duration::from_millis(50))?;
-        l.wait += waited.elapsed();
-        let Some(msg) = msg else {
+        // Everything the transport holds is taken in before one episode is trained on: a
+        // transport that serves its senders in a fixed order (iceoryx2 reads its publishers'
+        // queues one after the other) would otherwise hand over the first actor's next
+        // episode every time and starve the others until their queues fill up. Arrivals are
+        // then trained in the order they came, one per round of updates.
+        if pending.is_empty() {
+            let waited = Instant::now();
+            let first = subscriber.recv_timeout(Duration::from_millis(50))?;
+            l.wait += waited.elapsed();
+            pending.extend(first);
+        }
+        while pending.len() < MAX_PENDING {
+            match subscriber.try_recv()? {
+                Some(m) => pending.push_back(m),
+                None => break,
+            }
+        }
+        let Some(msg) = pending.pop_front() else {
             continue;
         };
         if msg.header.sender.role != Role::Actor {
