@@ -84,6 +84,7 @@ pub struct LearnerCore {
     /// The cached targets predate the target network (refreshed before the next update).
     targets_stale: bool,
     skipped_batches: u64,
+    skipped_refreshes: u64,
 }
 
 impl LearnerCore {
@@ -144,6 +145,7 @@ impl LearnerCore {
             target_buf: Vec::new(),
             targets_stale: true,
             skipped_batches: 0,
+            skipped_refreshes: 0,
         }
     }
 
@@ -418,6 +420,12 @@ impl LearnerCore {
         self.skipped_batches
     }
 
+    /// Rounds of updates skipped because the target network's values were not finite (not
+    /// checkpointed).
+    pub fn skipped_refreshes(&self) -> u64 {
+        self.skipped_refreshes
+    }
+
     /// Imitation learning: `epochs` shuffled passes over replay fitting the Monte-Carlo returns.
     /// Calls `progress(epoch, mean loss)` after each epoch; returns the last epoch's mean loss.
     pub fn imitation(
@@ -524,9 +532,27 @@ impl LearnerCore {
         if !self.counters.imitation_done {
             return Err(LearnerError::Phase("train_rl before start_rl"));
         }
+        let mut batches = batches;
         if batches > 0 && self.targets_stale {
-            self.refresh_targets(0..self.replay.len())?;
-            self.targets_stale = false;
+            match self.refresh_targets(0..self.replay.len()) {
+                Ok(()) => self.targets_stale = false,
+                Err(LearnerError::Policy(PolicyError::NonFinite(what))) => {
+                    // A target network whose values are not finite: no update on targets it
+                    // cannot give (the replay keeps its old ones, the refresh is tried again
+                    // next round, and the next target-network sync replaces it); skipped and
+                    // counted like a non-finite batch, never fatal (a restarted learner would
+                    // replay the same log into the same error).
+                    self.skipped_refreshes += 1;
+                    if self.skipped_refreshes.is_power_of_two() {
+                        tracing::warn!(
+                            skipped = self.skipped_refreshes,
+                            "skipped a round of updates: the target network gives non-finite {what}"
+                        );
+                    }
+                    batches = 0;
+                }
+                Err(e) => return Err(e),
+            }
         }
         let bs = self.train.rl.batch_size;
         let (mut sum, mut n) = (0f64, 0u32);
@@ -609,11 +635,17 @@ mod tests {
         assert_eq!(core.counters(), counters);
         assert_eq!(core.replay().len(), len);
         // Targets that overflow make every batch's loss non-finite: skipped, counted.
+        // Refreshing the cached targets over the whole replay finds them non-finite: the round
+        // of updates is skipped and counted, not an error; the weights stay, the version moves.
         core.targets_stale = true;
-        let err = core.train_rl(3);
-        // (Refreshing the cached targets over the whole replay refuses them as before.)
-        assert!(err.is_err());
         let before = core.trainer.online().params().to_vec();
+        let version = core.counters().policy_version;
+        let loss = core.train_rl(3).unwrap();
+        assert!(loss.is_nan());
+        assert_eq!(core.skipped_refreshes(), 1);
+        assert_eq!(core.trainer.online().params(), &before[..]);
+        assert_eq!(core.counters().policy_version, version + 1);
+        assert_eq!(core.counters().updates, counters.updates);
         let states: Vec<f32> = core.replay.target_inputs(0..1).0.to_vec();
         core.batch.states = states;
         core.batch.targets = vec![f32::INFINITY];

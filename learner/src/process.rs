@@ -390,6 +390,7 @@ impl Learner<'_> {
             ("publish_failures", self.publish_failures as f64),
             ("log_failures", self.log_failures as f64),
             ("skipped_batches", self.core.skipped_batches() as f64),
+            ("skipped_refreshes", self.core.skipped_refreshes() as f64),
             ("actors_alive", self.actors_alive.len() as f64),
             ("imitation_done", if c.imitation_done { 1.0 } else { 0.0 }),
         ] {
@@ -769,7 +770,21 @@ pub fn run(
                 );
             }
         }
-        l.checkpoint()?;
+        // The warm start is only in memory until this checkpoint: on a full disk, retry with
+        // back-off (each failure counted and logged) instead of dying and redoing it.
+        let mut retry_in = Duration::from_millis(500);
+        while !l.try_checkpoint() {
+            if stop.load(Ordering::SeqCst) {
+                tracing::error!("stopped before the checkpoint after imitation could be written; the warm start is done again on the next start");
+                return Ok(LearnerExit::Stopped);
+            }
+            tracing::warn!(
+                retry_in_ms = retry_in.as_millis() as u64,
+                "the checkpoint after imitation failed (free disk space in the run directory); retrying"
+            );
+            std::thread::sleep(retry_in);
+            retry_in = (retry_in * 2).min(Duration::from_secs(30));
+        }
         tracing::info!(transitions = l.core.replay().len(), "imitation done");
     }
     l.rl_start = (
