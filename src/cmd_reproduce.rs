@@ -42,6 +42,13 @@ pub struct ReproduceArgs {
     /// Actor processes of each distributed run
     #[arg(long, default_value_t = 2)]
     pub actors: u32,
+    /// Train only shard I of N of the grid (0 ≤ I < N; run k of the grid, in its order, belongs
+    /// to shard k mod N), for a cluster scheduler's array job. Without it: from
+    /// SLURM_ARRAY_TASK_ID − SLURM_ARRAY_TASK_MIN of SLURM_ARRAY_TASK_COUNT, or Kubernetes'
+    /// JOB_COMPLETION_INDEX of FSRL_SHARDS; otherwise the whole grid. A shard writes no report:
+    /// `fsrl reproduce --no-train` over the shared directories writes it
+    #[arg(long, value_name = "I/N")]
+    pub shard: Option<String>,
     /// Methods to train, comma-separated, run in this order
     #[arg(long, value_delimiter = ',', default_values = ["lstm-rl", "sarl", "fsrl"])]
     pub methods: Vec<String>,
@@ -691,13 +698,129 @@ fn os(args: &[&dyn AsRef<std::ffi::OsStr>]) -> Vec<OsString> {
 
 // ---------------------------------------------------------------------------------------------
 
+/// A share of the grid: runs whose index in the grid's order is `index` modulo `count`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Shard {
+    pub index: u32,
+    pub count: u32,
+}
+
+impl Shard {
+    pub fn holds(&self, k: usize) -> bool {
+        k % self.count as usize == self.index as usize
+    }
+}
+
+fn parse_shard(text: &str) -> Result<Shard, String> {
+    let (i, n) = text
+        .split_once('/')
+        .ok_or_else(|| format!("--shard {text}: expected I/N, e.g. 0/4"))?;
+    let parse = |v: &str, what: &str| {
+        v.trim()
+            .parse::<u32>()
+            .map_err(|_| format!("--shard {text}: {what} `{v}` is not a whole number"))
+    };
+    let (index, count) = (parse(i, "the index")?, parse(n, "the count")?);
+    if count == 0 || index >= count {
+        return Err(format!(
+            "--shard {text}: the index must be in 0..{count} (0-based) and the count at least 1"
+        ));
+    }
+    Ok(Shard { index, count })
+}
+
+/// The shard a scheduler's variables name, if any: Slurm's array (task id less the array's
+/// first id, of the task count) or a Kubernetes Indexed Job (its completion index, of
+/// `FSRL_SHARDS`, which the manifest sets).
+fn scheduler_shard(
+    env: &dyn Fn(&str) -> Option<String>,
+) -> Result<Option<(Shard, &'static str)>, String> {
+    let num = |k: &str| -> Result<Option<u32>, String> {
+        env(k)
+            .map(|v| {
+                v.trim()
+                    .parse::<u32>()
+                    .map_err(|_| format!("{k}={v} is not a whole number"))
+            })
+            .transpose()
+    };
+    if let Some(id) = num("SLURM_ARRAY_TASK_ID")? {
+        let min = num("SLURM_ARRAY_TASK_MIN")?.unwrap_or(0);
+        let count = num("SLURM_ARRAY_TASK_COUNT")?
+            .ok_or("SLURM_ARRAY_TASK_ID is set but SLURM_ARRAY_TASK_COUNT is not")?;
+        let index = id.checked_sub(min).ok_or(format!(
+            "SLURM_ARRAY_TASK_ID {id} is below SLURM_ARRAY_TASK_MIN {min}"
+        ))?;
+        return parse_shard(&format!("{index}/{count}")).map(|s| Some((s, "Slurm")));
+    }
+    if let Some(index) = num("JOB_COMPLETION_INDEX")? {
+        let count = num("FSRL_SHARDS")?
+            .ok_or("JOB_COMPLETION_INDEX is set but FSRL_SHARDS (the Job's completions) is not")?;
+        return parse_shard(&format!("{index}/{count}")).map(|s| Some((s, "Kubernetes")));
+    }
+    Ok(None)
+}
+
+/// The shard this invocation trains: `--shard`, else the scheduler's, else none (the whole
+/// grid). `--shard` that disagrees with the scheduler's variables is an error.
+pub fn shard_of(
+    arg: Option<&str>,
+    env: &dyn Fn(&str) -> Option<String>,
+) -> Result<Option<Shard>, String> {
+    let given = arg.map(parse_shard).transpose()?;
+    let sched = scheduler_shard(env)?;
+    match (given, sched) {
+        (Some(g), Some((s, who))) if g != s => Err(format!(
+            "--shard {}/{} disagrees with the {who} variables ({}/{})",
+            g.index, g.count, s.index, s.count
+        )),
+        (Some(g), _) => Ok(Some(g)),
+        (None, s) => Ok(s.map(|(s, _)| s)),
+    }
+}
+
+/// A run directory that another process trains now (its learner or trainer holds the lock on
+/// `<run>/lock`), if any: two shards must never write the same run.
+fn held_by_other(run_dir: &Path) -> Option<String> {
+    if !run_dir.join("lock").exists() {
+        return None;
+    }
+    learner::store::RunLock::acquire(run_dir)
+        .err()
+        .map(|e| format!("{}: {e}", run_dir.display()))
+}
+
 pub fn run(args: ReproduceArgs) -> anyhow::Result<()> {
     let grid = grid(&args)?;
     let layout = Layout {
         runs: args.runs.clone(),
         models: args.models.clone(),
     };
-    let planned = plan(&grid, &layout, args.episodes);
+    let shard = shard_of(args.shard.as_deref(), &|k| std::env::var(k).ok())
+        .map_err(|e| anyhow::anyhow!("{e}"))?;
+    let mut planned = plan(&grid, &layout, args.episodes);
+    if let Some(sh) = shard {
+        planned = planned
+            .into_iter()
+            .enumerate()
+            .filter(|(k, _)| sh.holds(*k))
+            .map(|(_, p)| p)
+            .collect();
+        if !args.dry_run && !args.no_train {
+            let busy: Vec<String> = planned
+                .iter()
+                .filter_map(|p| held_by_other(&p.run_dir))
+                .collect();
+            if !busy.is_empty() {
+                bail!(
+                    "shard {}/{}: runs of this shard are being trained elsewhere (two shards must not share a run; same --shard twice?):\n  - {}",
+                    sh.index,
+                    sh.count,
+                    busy.join("\n  - ")
+                );
+            }
+        }
+    }
     let train = &grid.file.train;
     let orca_dir = layout.orca_eval_dir();
     let orca_current = eval_is_current(&orca_dir, &Setting::ALL, args.episodes, None);
@@ -716,6 +839,16 @@ pub fn run(args: ReproduceArgs) -> anyhow::Result<()> {
         layout.models.display(),
         args.episodes
     );
+    let header = match shard {
+        Some(sh) => format!(
+            "{header}shard {}/{}: {} of the grid's runs (run k belongs to shard k mod {})\n",
+            sh.index,
+            sh.count,
+            planned.len(),
+            sh.count
+        ),
+        None => header,
+    };
     if args.dry_run {
         print!("{header}{table}");
         return Ok(());
@@ -730,7 +863,8 @@ pub fn run(args: ReproduceArgs) -> anyhow::Result<()> {
         None => Vec::new(),
     };
     let episodes = args.episodes.to_string();
-    if !orca_current {
+    // ORCA's row: evaluated by the whole grid or by shard 0.
+    if !orca_current && shard.is_none_or(|s| s.index == 0) {
         eprintln!("[orca] evaluating ORCA on the six settings ...");
         runner.step(
             "[orca]",
@@ -859,6 +993,13 @@ pub fn run(args: ReproduceArgs) -> anyhow::Result<()> {
             duration_text(cal.eta_s(&planned[i + 1..], train, args.episodes, args.no_train))
         );
     }
+    if let Some(sh) = shard {
+        eprintln!(
+            "shard {}/{} done: {complete} of its {n} runs complete; when every shard is done, `fsrl reproduce --no-train` with the same grid, --runs and --models writes the report",
+            sh.index, sh.count
+        );
+        return Ok(());
+    }
     eprintln!(
         "report of {} evaluated runs and ORCA → {}",
         sources.len() - 1,
@@ -884,6 +1025,7 @@ mod tests {
             config: Some(config.to_path_buf()),
             single_process: false,
             actors: 2,
+            shard: None,
             methods: vec!["sarl".into()],
             settings: Vec::new(),
             seeds: vec![0],
@@ -1160,6 +1302,71 @@ mod tests {
         assert!(!Planned::new(cell, &layout, &file, 500).config_differs);
         file.train.rl.episodes = 7;
         assert!(Planned::new(cell, &layout, &file, 500).config_differs);
+    }
+
+    #[test]
+    fn a_shard_comes_from_the_flag_or_the_scheduler_and_must_agree() {
+        let none = |_: &str| None;
+        assert_eq!(shard_of(None, &none), Ok(None));
+        assert_eq!(
+            shard_of(Some("1/4"), &none),
+            Ok(Some(Shard { index: 1, count: 4 }))
+        );
+        for bad in ["4/4", "1/0", "x/2", "3", "-1/2"] {
+            assert!(shard_of(Some(bad), &none).is_err(), "{bad}");
+        }
+        let slurm = |k: &str| match k {
+            "SLURM_ARRAY_TASK_ID" => Some("7".to_string()),
+            "SLURM_ARRAY_TASK_MIN" => Some("1".to_string()),
+            "SLURM_ARRAY_TASK_COUNT" => Some("54".to_string()),
+            _ => None,
+        };
+        assert_eq!(
+            shard_of(None, &slurm),
+            Ok(Some(Shard {
+                index: 6,
+                count: 54
+            }))
+        );
+        assert_eq!(
+            shard_of(Some("6/54"), &slurm),
+            Ok(Some(Shard {
+                index: 6,
+                count: 54
+            }))
+        );
+        let err = shard_of(Some("6/27"), &slurm).unwrap_err();
+        assert!(err.contains("disagrees with the Slurm variables"), "{err}");
+        let k8s = |k: &str| match k {
+            "JOB_COMPLETION_INDEX" => Some("53".to_string()),
+            "FSRL_SHARDS" => Some("54".to_string()),
+            _ => None,
+        };
+        assert_eq!(
+            shard_of(None, &k8s),
+            Ok(Some(Shard {
+                index: 53,
+                count: 54
+            }))
+        );
+        let k8s_bad = |k: &str| (k == "JOB_COMPLETION_INDEX").then(|| "54".to_string());
+        assert!(shard_of(None, &k8s_bad)
+            .unwrap_err()
+            .contains("FSRL_SHARDS"));
+        // Every run of a grid in exactly one shard.
+        let n = 54;
+        for count in [1u32, 2, 5, 54, 60] {
+            let mut seen = vec![0; n];
+            for index in 0..count {
+                let sh = Shard { index, count };
+                for (k, s) in seen.iter_mut().enumerate() {
+                    if sh.holds(k) {
+                        *s += 1;
+                    }
+                }
+            }
+            assert!(seen.iter().all(|&s| s == 1), "{count}");
+        }
     }
 
     #[test]

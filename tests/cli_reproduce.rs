@@ -294,3 +294,87 @@ fn ctrl_c_checkpoints_the_run_in_training_and_the_same_command_resumes_it() {
     assert!(stdout.contains(&format!("{RUN}  resume (")), "{stdout}");
     assert!(stdout.contains("1 to resume"), "{stdout}");
 }
+
+/// `--shard I/N`: two shards as two processes at once cover a small grid exactly once, and the
+/// report that `--no-train` then writes over their shared directories is the one the unsharded
+/// grid writes (single-process training: the same runs, bit for bit).
+#[test]
+fn two_shards_cover_the_grid_once_and_their_report_is_the_unsharded_one() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (sharded, whole) = (tmp.path().join("sharded"), tmp.path().join("whole"));
+    let grid = |dir: &Path, extra: &[&str]| -> Command {
+        std::fs::create_dir_all(dir).unwrap();
+        std::fs::write(dir.join("tiny.toml"), TINY).unwrap();
+        let mut c = fsrl(dir);
+        c.args(["reproduce", "--config", "tiny.toml", "--single-process"])
+            .args(["--methods", "sarl,lstm-rl", "--settings", "env2-visible"])
+            .args(["--seeds", "0,1", "--runs", "runs", "--models", "models"])
+            .args(["--episodes", "2"])
+            .args(extra)
+            .env_remove("SLURM_ARRAY_TASK_ID")
+            .env_remove("JOB_COMPLETION_INDEX");
+        c
+    };
+    let shards: Vec<_> = ["0/2", "1/2"]
+        .iter()
+        .map(|s| {
+            grid(&sharded, &["--shard", s])
+                .stdout(Stdio::null())
+                .stderr(Stdio::piped())
+                .spawn()
+                .unwrap()
+        })
+        .collect();
+    let mut trained = Vec::new();
+    for child in shards {
+        let o = child.wait_with_output().unwrap();
+        let (_, stderr) = text(&o);
+        assert!(o.status.success(), "{stderr}");
+        assert!(stderr.contains("done:"), "{stderr}");
+        trained.extend(
+            stderr
+                .lines()
+                .filter(|l| l.contains(": training, new"))
+                .map(|l| {
+                    l.split(": ")
+                        .next()
+                        .unwrap()
+                        .split(' ')
+                        .nth(1)
+                        .unwrap()
+                        .to_string()
+                }),
+        );
+    }
+    trained.sort();
+    assert_eq!(
+        trained,
+        [
+            "lstm-rl-env2-visible-s0",
+            "lstm-rl-env2-visible-s1",
+            "sarl-env2-visible-s0",
+            "sarl-env2-visible-s1"
+        ],
+        "every run trained by exactly one shard"
+    );
+    assert!(
+        !sharded.join("runs/report").exists(),
+        "a shard writes no report"
+    );
+    let o = grid(&sharded, &["--no-train"]).output().unwrap();
+    assert!(o.status.success(), "{}", text(&o).1);
+    let o = grid(&whole, &[]).output().unwrap();
+    assert!(o.status.success(), "{}", text(&o).1);
+    for f in ["compare.md", "compare.csv"] {
+        let a = std::fs::read_to_string(sharded.join("runs/report").join(f)).unwrap();
+        let b = std::fs::read_to_string(whole.join("runs/report").join(f)).unwrap();
+        assert_eq!(a, b, "{f} differs");
+    }
+    // A bad shard is refused before anything starts.
+    let o = grid(&tmp.path().join("bad"), &["--shard", "2/2"])
+        .output()
+        .unwrap();
+    assert!(!o.status.success());
+    assert!(text(&o).1.contains("--shard 2/2"), "{}", text(&o).1);
+    assert!(!tmp.path().join("bad/runs").exists());
+}

@@ -1090,3 +1090,105 @@ fn the_default_schedule_is_configs_fast_and_the_paper_schedule_is_one_file_away(
         assert_eq!(get(&paper, path), value, "paper {path:?}");
     }
 }
+
+/// The number of runs `fsrl reproduce` plans for `args` (its `--dry-run` header).
+fn grid_runs(args: &[&str]) -> usize {
+    let dir = tempfile::tempdir().unwrap();
+    let runs = dir.path().join("runs");
+    let mut all = vec!["reproduce", "--dry-run", "--runs", runs.to_str().unwrap()];
+    all.extend_from_slice(args);
+    let o = fsrl(&all);
+    let out = String::from_utf8_lossy(&o.stdout).into_owned();
+    assert!(
+        o.status.success(),
+        "{out}{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    let head = out.lines().next().unwrap_or_default();
+    let runs = head
+        .split(" = ")
+        .nth(1)
+        .and_then(|r| r.split_whitespace().next())
+        .and_then(|n| n.parse().ok())
+        .unwrap_or_else(|| panic!("no run count in {head}"));
+    runs
+}
+
+/// The Slurm array script runs the paper's grid with one task per run: its array size is the
+/// size of the grid its `fsrl reproduce` line plans, and it lets fsrl read the task id.
+#[test]
+fn the_slurm_array_has_one_task_per_run_of_the_grid() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let script = std::fs::read_to_string(root.join("deploy/slurm/reproduce.sbatch")).unwrap();
+    let array = script
+        .lines()
+        .find_map(|l| l.strip_prefix("#SBATCH --array="))
+        .expect("an #SBATCH --array line");
+    let (lo, hi) = array.split_once('-').expect("an array range lo-hi");
+    let tasks = hi.trim().parse::<usize>().unwrap() - lo.trim().parse::<usize>().unwrap() + 1;
+    let exec = script
+        .lines()
+        .find(|l| l.starts_with("exec \"$FSRL\" reproduce"))
+        .expect("the exec line");
+    assert!(
+        !exec.contains("--shard"),
+        "fsrl reads the Slurm variables itself: {exec}"
+    );
+    let flag = |name: &str| -> String {
+        let mut words = exec.split_whitespace();
+        words.find(|w| *w == name);
+        words
+            .next()
+            .unwrap_or_else(|| panic!("{name} in {exec}"))
+            .to_string()
+    };
+    let (methods, seeds) = (flag("--methods"), flag("--seeds"));
+    assert_eq!(tasks, 54);
+    assert_eq!(
+        grid_runs(&["--methods", &methods, "--seeds", &seeds]),
+        tasks
+    );
+}
+
+/// The Kubernetes Indexed Job: parses, names the image and the command, and has one completion
+/// per run of the grid its arguments plan, with FSRL_SHARDS equal to the completions.
+#[test]
+fn the_kubernetes_job_has_one_indexed_completion_per_run_of_the_grid() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let job: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(root.join("deploy/k8s/reproduce-job.json")).unwrap(),
+    )
+    .expect("the Job manifest is JSON");
+    assert_eq!(job["kind"], "Job");
+    assert_eq!(job["apiVersion"], "batch/v1");
+    let spec = &job["spec"];
+    assert_eq!(spec["completionMode"], "Indexed");
+    let completions = spec["completions"].as_u64().unwrap() as usize;
+    let c = &spec["template"]["spec"]["containers"][0];
+    assert!(!c["image"].as_str().unwrap().is_empty());
+    assert_eq!(c["command"][0], "fsrl");
+    let args: Vec<&str> = c["args"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|a| a.as_str().unwrap())
+        .collect();
+    assert_eq!(args[0], "reproduce");
+    let shards = c["env"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|e| e["name"] == "FSRL_SHARDS")
+        .expect("FSRL_SHARDS")["value"]
+        .as_str()
+        .unwrap()
+        .parse::<usize>()
+        .unwrap();
+    assert_eq!(shards, completions);
+    let flag = |name: &str| args[args.iter().position(|a| *a == name).unwrap() + 1];
+    assert_eq!(
+        grid_runs(&["--methods", flag("--methods"), "--seeds", flag("--seeds")]),
+        completions
+    );
+    assert_eq!(completions, 54);
+}
