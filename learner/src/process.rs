@@ -428,7 +428,14 @@ impl Learner<'_> {
             replay_size: self.core.replay().len(),
             wall_s: (self.wall0 + self.start.elapsed()).as_secs_f64(),
         };
-        if let Err(e) = crate::runlog::append(&mut self.log, &line) {
+        self.log_line(&line);
+        Ok(())
+    }
+
+    /// Appends a line to the run's log; a line that cannot be written (a full disk) is counted
+    /// and logged, never fatal.
+    fn log_line(&mut self, line: &impl serde::Serialize) {
+        if let Err(e) = crate::runlog::append(&mut self.log, line) {
             self.log_failures += 1;
             warn_sometimes(
                 "log",
@@ -436,7 +443,6 @@ impl Learner<'_> {
                 format_args!("metrics.jsonl: a line was not written: {e}"),
             );
         }
-        Ok(())
     }
 
     /// Accepts one episode (not yet trained on). Returns false for a duplicate or a rejection.
@@ -704,23 +710,12 @@ pub fn run(
         let mut last = Instant::now();
         let metrics = transport.publisher(&keys::metrics(&run, transport.sender()))?;
         let mut refused = 0u64;
-        // The imitation lines of the log (written once the warm start is done, as in one
-        // process): each epoch's loss against the spread of the demonstrations' returns.
-        let mut targets = (0.0, 0.0);
-        let mut epochs = Vec::new();
+        // The imitation lines of the log, written once the warm start is done (as in one
+        // process).
+        let mut log = crate::runlog::ImitationLog::default();
         let (wall0, start) = (l.wall0, l.start);
         let finished = imitation::run(&mut l.core, spec, stop, |p| {
-            match p {
-                ImitationProgress::DemosDone {
-                    target_mean,
-                    target_var,
-                    ..
-                } => targets = (target_mean, target_var),
-                ImitationProgress::Epoch { done, loss, .. } => {
-                    epochs.push((done - 1, loss, (wall0 + start.elapsed()).as_secs_f64()));
-                }
-                ImitationProgress::Demo { .. } => {}
-            }
+            log.observe(&p, (wall0 + start.elapsed()).as_secs_f64());
             // Nobody should send episodes now (actors wait for the training phase): drain and
             // count, so nothing piles up in the subscriber's queue during imitation.
             while let Ok(Some(msg)) = subscriber.try_recv() {
@@ -758,17 +753,8 @@ pub fn run(
         if !finished {
             return Ok(LearnerExit::Stopped);
         }
-        let (mean, target_var) = targets;
-        for (epoch, loss, wall_s) in epochs {
-            let line = serde_json::json!({"phase": "imitation", "epoch": epoch, "loss": loss, "target_mean": mean, "target_var": target_var, "wall_s": wall_s});
-            if let Err(e) = crate::runlog::append(&mut l.log, &line) {
-                l.log_failures += 1;
-                warn_sometimes(
-                    "log",
-                    l.log_failures,
-                    format_args!("metrics.jsonl: a line was not written: {e}"),
-                );
-            }
+        for line in log.lines() {
+            l.log_line(&line);
         }
         // The warm start is only in memory until this checkpoint: on a full disk, retry with
         // back-off (each failure counted and logged) instead of dying and redoing it.

@@ -29,6 +29,41 @@ pub struct RlLine<'a> {
     pub wall_s: f64,
 }
 
+/// The imitation lines of a run's log, gathered from the warm start's progress and written
+/// once it is done (both modes): each epoch's loss against the mean and variance of the
+/// demonstrations' returns (an imitation loss means little without the spread of its targets).
+#[derive(Debug, Default)]
+pub struct ImitationLog {
+    targets: (f64, f64),
+    epochs: Vec<(u32, f32, f64)>,
+}
+
+impl ImitationLog {
+    /// Records what `p` tells; `wall_s` is the run's clock now.
+    pub fn observe(&mut self, p: &crate::imitation::ImitationProgress, wall_s: f64) {
+        use crate::imitation::ImitationProgress;
+        match *p {
+            ImitationProgress::DemosDone {
+                target_mean,
+                target_var,
+                ..
+            } => self.targets = (target_mean, target_var),
+            ImitationProgress::Epoch { done, loss, .. } => {
+                self.epochs.push((done - 1, loss, wall_s))
+            }
+            ImitationProgress::Demo { .. } => {}
+        }
+    }
+
+    /// The lines, one per epoch (phase `"imitation"`).
+    pub fn lines(&self) -> impl Iterator<Item = serde_json::Value> + '_ {
+        let (mean, target_var) = self.targets;
+        self.epochs.iter().map(move |&(epoch, loss, wall_s)| {
+            serde_json::json!({"phase": "imitation", "epoch": epoch, "loss": loss, "target_mean": mean, "target_var": target_var, "wall_s": wall_s})
+        })
+    }
+}
+
 /// Appends `line` and a newline in one write (a log appended to by one process at a time).
 pub fn append(file: &mut std::fs::File, line: &impl Serialize) -> std::io::Result<()> {
     let mut text = serde_json::to_string(line).map_err(std::io::Error::other)?;

@@ -159,26 +159,21 @@ pub fn run(
 
     // The warm start (skipped when the checkpoint already has it): the learner process's own.
     if !core.counters().imitation_done {
-        let mut targets = (0.0, 0.0);
-        let mut epochs = Vec::new();
-        let finished = imitation::run(core, spec, stop, |p| match p {
-            ImitationProgress::Demo { done, total } => progress.demos(done, total),
-            ImitationProgress::DemosDone {
-                target_mean,
-                target_var,
-                ..
-            } => targets = (target_mean, target_var),
-            ImitationProgress::Epoch { done, total, loss } => {
-                progress.imitation_epoch(done, total, loss);
-                epochs.push((done - 1, loss, (wall0 + start.elapsed()).as_secs_f64()));
+        let mut log = runlog::ImitationLog::default();
+        let finished = imitation::run(core, spec, stop, |p| {
+            log.observe(&p, (wall0 + start.elapsed()).as_secs_f64());
+            match p {
+                ImitationProgress::Demo { done, total } => progress.demos(done, total),
+                ImitationProgress::Epoch { done, total, loss } => {
+                    progress.imitation_epoch(done, total, loss)
+                }
+                ImitationProgress::DemosDone { .. } => {}
             }
         })?;
         if !finished {
             return Err(TrainerError::InterruptedInWarmStart);
         }
-        let (mean, target_var) = targets;
-        for (epoch, loss, wall_s) in epochs {
-            let line = serde_json::json!({"phase": "imitation", "epoch": epoch, "loss": loss, "target_mean": mean, "target_var": target_var, "wall_s": wall_s});
+        for line in log.lines() {
             writeln!(metrics, "{line}").map_err(io("cannot append to metrics.jsonl"))?;
         }
         save(core, &out.join("checkpoints").join("imitation.ckpt"))?;
