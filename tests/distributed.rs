@@ -188,11 +188,25 @@ fn wait_exit(c: &mut Child, what: &str, run: &Run) -> std::process::ExitStatus {
 fn two_process_run(plane: &'static str) {
     let run = Run::new("two", plane, "");
     let mut procs = Procs(vec![run.spawn("learner", &["--rl-episodes", "4"])]);
+    // Watch the weights before the actor starts: its four RL episodes at 20 updates each take
+    // well under a second, and a monitor that joined after them would see only the last version.
+    let mon = run.monitor(0);
+    let weights = mon.latest_subscriber(&keys::weights(mon.run())).unwrap();
+    let alive = mon.watch_alive().unwrap();
+    let deadline = Instant::now() + TIMEOUT;
+    loop {
+        assert!(Instant::now() < deadline, "no learner\n{}", run.logs());
+        if let Some(transport::AliveEvent::Joined(m)) =
+            alive.recv_timeout(Duration::from_millis(200)).unwrap()
+        {
+            if m.sender.role == Role::Learner {
+                break;
+            }
+        }
+    }
     procs
         .0
         .push(run.spawn("actor", &["--rl-episodes", "4", "--id", "0"]));
-    let mon = run.monitor(0);
-    let weights = mon.latest_subscriber(&keys::weights(mon.run())).unwrap();
     let mut versions = std::collections::BTreeSet::new();
     let deadline = Instant::now() + TIMEOUT;
     while versions.len() < 2 {
