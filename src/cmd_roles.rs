@@ -270,11 +270,11 @@ pub fn evaluator(args: EvaluatorArgs) -> anyhow::Result<()> {
     // Every validated snapshot is kept as a model file (before its validation line), so the
     // selection rules, `fsrl eval RUN` and `fsrl export-model RUN` work as on a single-process run.
     let spec = r.spec();
-    let snapshots = crate::select::snapshot_dir(&opts.out_dir);
+    let snapshots = lab::select::snapshot_dir(&opts.out_dir);
     let keep = |net: &policy::ValueNet, version: u64, rl_episodes: u64| -> Result<(), String> {
         std::fs::create_dir_all(&snapshots)
             .map_err(|e| format!("cannot create {}: {e}", snapshots.display()))?;
-        let path = crate::select::snapshot_path(&opts.out_dir, rl_episodes);
+        let path = lab::select::snapshot_path(&opts.out_dir, rl_episodes);
         learner::model::Model::from_snapshot(&spec, &r.file.run.id, net, version, rl_episodes)
             .and_then(|m| m.save(&path))
             .map_err(|e| format!("cannot keep the snapshot {}: {e}", path.display()))

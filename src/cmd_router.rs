@@ -26,18 +26,20 @@ pub struct RouterArgs {
     pub check: bool,
 }
 
-/// zenoh settings that name files the router must be able to read.
-const FILE_KEYS: [&str; 6] = [
-    "transport/link/tls/root_ca_certificate",
-    "transport/link/tls/listen_certificate",
-    "transport/link/tls/listen_private_key",
-    "transport/link/tls/connect_certificate",
-    "transport/link/tls/connect_private_key",
-    "transport/auth/usrpwd/dictionary_file",
+/// zenoh settings that name files the router must be able to read, and whether the file is a
+/// secret (a private key, the users' passwords) that group and others must not read.
+const FILE_KEYS: [(&str, bool); 6] = [
+    ("transport/link/tls/root_ca_certificate", false),
+    ("transport/link/tls/listen_certificate", false),
+    ("transport/link/tls/listen_private_key", true),
+    ("transport/link/tls/connect_certificate", false),
+    ("transport/link/tls/connect_private_key", true),
+    ("transport/auth/usrpwd/dictionary_file", true),
 ];
 
 /// The router's zenoh configuration: the file, then the `--cfg` overrides; checked (router
-/// mode, every file it names readable), every problem reported at once.
+/// mode, every file it names readable, its private keys and users file readable by its owner
+/// only), every problem reported at once.
 pub fn load(path: &Path, overrides: &[String]) -> anyhow::Result<zenoh::Config> {
     if !path.is_file() {
         bail!("cannot read the router configuration {}", path.display());
@@ -61,10 +63,13 @@ pub fn load(path: &Path, overrides: &[String]) -> anyhow::Result<zenoh::Config> 
             .map_err(|e| anyhow::anyhow!("mode: {e}"))?,
         Some(m) => problems.push(format!("mode must be \"router\", got {m:?}")),
     }
-    for key in FILE_KEYS {
+    for (key, secret) in FILE_KEYS {
         if let Some(file) = get(&c, key) {
             if let Err(e) = std::fs::File::open(&file) {
                 problems.push(format!("{key}: cannot read {file}: {e}"));
+            } else if secret {
+                // The same rule as the clients' password files and keys.
+                problems.extend(transport::exposed_secret(key, Path::new(&file)));
             }
         }
     }

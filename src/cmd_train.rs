@@ -3,102 +3,21 @@
 //! lockstep), with progress, Ctrl-C handling, `--resume`, and the same final evaluation on the
 //! setting's test seeds in both modes.
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use anyhow::Context;
-use evaluator::{evaluate, Subject};
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use learner::checkpoint;
 use learner::LearnerCore;
 use policy::method::RunSpec;
+use transport::DataPlane;
 
 use crate::config::{run_checkpoint, Resolved, RunOverrides};
-use crate::report::{Report, SettingReport};
-
-/// The final evaluation of a finished run, the same in both modes: the run's policy (its
-/// `train.select` rule: the last checkpoint, or the chosen validation snapshot) on
-/// `train.eval_episodes` test episodes of its own setting; writes `report.json` and `report.md`
-/// into the run directory and prints the table.
-pub(crate) fn final_evaluation(out: &Path, spec: &RunSpec) -> anyhow::Result<Report> {
-    let train = &spec.train;
-    eprintln!(
-        "evaluating on {} test episodes of {} ...",
-        train.eval_episodes, spec.setting
-    );
-    let path = select::run_policy(out, None)?;
-    let (model, _) = learner::model::load_policy(&path)
-        .with_context(|| format!("cannot load {}", path.display()))?;
-    let subject = Subject::of_run(spec, &model.net);
-    let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
-    let results = evaluate(
-        subject,
-        &spec.sim,
-        &[spec.setting],
-        train.test_seed_start,
-        train.eval_episodes,
-        threads,
-    )?;
-    let report = Report {
-        method: spec.method.name().to_string(),
-        policy_version: model.counters.policy_version,
-        test_seed_start: train.test_seed_start,
-        settings: results
-            .iter()
-            .map(|r| SettingReport::new(r.setting.name(), &r.aggregate))
-            .collect(),
-    };
-    std::fs::write(
-        out.join("report.json"),
-        serde_json::to_string_pretty(&report)?,
-    )?;
-    let md = report.markdown();
-    std::fs::write(out.join("report.md"), &md)?;
-    println!("{md}");
-    Ok(report)
-}
-
-/// `run.json` of a run directory: which mode trained it and where its wall-clock time went
-/// (seconds; in a distributed run also each process's waiting and the realised replay ratio).
-pub(crate) struct RunTiming {
-    value: serde_json::Map<String, serde_json::Value>,
-}
-
-impl RunTiming {
-    pub(crate) fn new(mode: &str) -> Self {
-        let mut value = serde_json::Map::new();
-        value.insert("mode".into(), mode.into());
-        Self { value }
-    }
-    pub(crate) fn set(&mut self, key: &str, v: impl Into<serde_json::Value>) {
-        self.value.insert(key.into(), v.into());
-    }
-    /// Adds `key` to the recorded time (a resumed run adds its invocation's share).
-    pub(crate) fn add_s(&mut self, key: &str, seconds: f64) {
-        let before = self.value.get(key).and_then(|v| v.as_f64()).unwrap_or(0.0);
-        self.set(key, before + seconds);
-    }
-    /// What an earlier invocation of the same run recorded (a resumed run goes on from it).
-    pub(crate) fn read(out: &Path, mode: &str) -> Self {
-        let mut t = Self::new(mode);
-        if let Ok(text) = std::fs::read_to_string(out.join("run.json")) {
-            if let Ok(serde_json::Value::Object(m)) = serde_json::from_str(&text) {
-                if m.get("mode").and_then(|v| v.as_str()) == Some(mode) {
-                    t.value = m;
-                }
-            }
-        }
-        t
-    }
-    pub(crate) fn write(&self, out: &Path) -> anyhow::Result<()> {
-        let path = out.join("run.json");
-        std::fs::write(&path, serde_json::to_string_pretty(&self.value)? + "\n")
-            .with_context(|| format!("cannot write {}", path.display()))
-    }
-}
-use crate::select;
+use lab::evaluation::final_evaluation;
+use lab::run::RunTiming;
 
 #[derive(Debug, clap::Args)]
 pub struct TrainArgs {
@@ -130,7 +49,7 @@ pub struct TrainArgs {
     pub no_evaluator: bool,
 }
 
-pub(crate) fn resolve(args: &TrainArgs) -> anyhow::Result<Resolved> {
+fn resolve(args: &TrainArgs) -> anyhow::Result<Resolved> {
     let mut file = args.run.load()?;
     let mut problems = Vec::new();
     if let Some(n) = args.eval_episodes {
@@ -259,9 +178,65 @@ impl trainer::Progress for Bars {
     }
 }
 
+/// The default mode: learner, actors and an evaluator as child processes (`launch::local`).
+fn distributed(args: TrainArgs) -> anyhow::Result<()> {
+    let stop = Arc::new(AtomicBool::new(false));
+    {
+        let stop = stop.clone();
+        ctrlc::set_handler(move || {
+            if stop.swap(true, Ordering::SeqCst) {
+                std::process::exit(130);
+            }
+            eprintln!("\ninterrupted: stopping the learner (it checkpoints), actors and evaluator; Ctrl-C again to quit at once");
+        })
+        .context("cannot install the Ctrl-C handler")?;
+    }
+    let mut problems = Vec::new();
+    let data_plane = match args.transport.as_str() {
+        "iceoryx2" => DataPlane::Iceoryx2,
+        "zenoh" => DataPlane::Zenoh,
+        other => {
+            problems.push(format!(
+                "--transport must be iceoryx2 or zenoh, got `{other}`"
+            ));
+            DataPlane::Zenoh
+        }
+    };
+    if args.actors == 0 {
+        problems.push("--actors must be at least 1".to_string());
+    }
+    let resolved = match resolve(&args) {
+        Ok(r) => r,
+        Err(e) => {
+            if problems.is_empty() {
+                return Err(e);
+            }
+            anyhow::bail!("{e:#}\n  - {}", problems.join("\n  - "));
+        }
+    };
+    if !problems.is_empty() {
+        return Err(sim::ConfigError { problems }.into());
+    }
+    let out = args
+        .out
+        .clone()
+        .unwrap_or_else(|| resolved.default_run_dir());
+    let launch = launch::local::Launch {
+        exe: std::env::current_exe().context("cannot find the fsrl executable")?,
+        resolved,
+        out,
+        resume: args.resume,
+        actors: args.actors,
+        data_plane,
+        evaluator: !args.no_evaluator,
+        eval_episodes: args.eval_episodes,
+    };
+    launch::local::run(launch, &stop)
+}
+
 pub fn run(args: TrainArgs) -> anyhow::Result<()> {
     if !args.single_process {
-        return crate::launch::run(args);
+        return distributed(args);
     }
     let stop = Arc::new(AtomicBool::new(false));
     {

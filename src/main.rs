@@ -7,17 +7,14 @@ mod cmd_eval;
 mod cmd_model;
 mod cmd_plot;
 mod cmd_reproduce;
+mod cmd_robot;
 mod cmd_roles;
 mod cmd_router;
+mod cmd_serve;
 mod cmd_sim;
 mod cmd_train;
 mod cmd_watch;
 mod config;
-mod frontier;
-mod launch;
-mod picture;
-mod report;
-mod select;
 
 use std::process::ExitCode;
 
@@ -63,6 +60,8 @@ enum Command {
     Watch(cmd_watch::WatchArgs),
     /// Parse and validate run configuration files.
     CheckConfig(cmd_check::CheckArgs),
+    /// Drive a robot with a model over zenoh: ROS 2 topics (bridge or rmw_zenoh) and a queryable.
+    Serve(cmd_serve::ServeArgs),
 }
 
 fn main() -> ExitCode {
@@ -107,6 +106,7 @@ fn main() -> ExitCode {
         Command::Router(args) => cmd_router::run(args),
         Command::Watch(args) => cmd_watch::run(args),
         Command::CheckConfig(args) => cmd_check::run(args),
+        Command::Serve(args) => cmd_serve::run(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -386,6 +386,61 @@ fn the_router_config_is_zenoh_json5_that_opens_a_tls_router() {
     assert!(String::from_utf8_lossy(&o.stderr).contains("mode must be \"router\""));
 }
 
+/// `fsrl router` refuses its private key or users file when group or others may read it, as
+/// the clients refuse their password files and keys: naming each file, its mode and the fix,
+/// with `--check` and when starting.
+#[test]
+fn the_router_refuses_a_key_or_users_file_others_may_read() {
+    let path = deploy().join("router.json5");
+    let etc = etc_fsrl();
+    let router = |check: bool| {
+        let mut args = vec!["router".to_string()];
+        if check {
+            args.push("--check".into());
+        }
+        args.extend(["--config".into(), path.to_string_lossy().into_owned()]);
+        for (k, v) in router_overrides(etc.path()) {
+            args.push("--cfg".into());
+            args.push(format!("{k}:{v}"));
+        }
+        // Never left running: a loopback port of its own (only reached if it were accepted).
+        args.push("--cfg".into());
+        args.push("listen/endpoints:[\"tls/127.0.0.1:0\"]".into());
+        let args: Vec<&str> = args.iter().map(String::as_str).collect();
+        fsrl(&args)
+    };
+    let o = router(true);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let key = etc.path().join("certs/router.key");
+    let users = etc.path().join("router-users.txt");
+    let set = |p: &Path, mode: u32| {
+        use std::os::unix::fs::PermissionsExt as _;
+        std::fs::set_permissions(p, std::fs::Permissions::from_mode(mode)).unwrap();
+    };
+    set(&key, 0o640);
+    set(&users, 0o644);
+    for check in [true, false] {
+        let o = router(check);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(!o.status.success(), "check={check}: {err}");
+        for (file, mode) in [(&key, "0640"), (&users, "0644")] {
+            let file = file.display().to_string();
+            assert!(
+                err.contains(&format!("{file} is a secret"))
+                    && err.contains(&format!("mode {mode}"))
+                    && err.contains(&format!("chmod 600 {file}")),
+                "check={check}, {file}: {err}"
+            );
+        }
+    }
+    // Only the owner's bits: accepted (0400 as well as 0600). The certificates stay public.
+    set(&key, 0o400);
+    set(&users, 0o600);
+    set(&etc.path().join("certs/router.crt"), 0o644);
+    let o = router(true);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+}
+
 /// The router's access control for ingress (what a client may send), read from the file:
 /// user name → message → key expressions allowed.
 fn ingress_rights() -> BTreeMap<String, BTreeMap<String, Vec<String>>> {
@@ -866,8 +921,13 @@ fn the_systemd_units_start_each_role_with_a_deployed_config() {
             .trim_start_matches("fsrl-")
             .trim_end_matches(".service")
             .trim_end_matches('@');
-        // One system user per role: none can read another's secrets or write its state.
-        let user = format!("fsrl-{role}");
+        // One system user per role, and per actor instance (`%i`, the actor id): none can
+        // read another's secrets or write its state, not even two actors on one host.
+        let user = if name.contains('@') {
+            format!("fsrl-{role}-%i")
+        } else {
+            format!("fsrl-{role}")
+        };
         assert_eq!(one("Service", "User"), user, "{name}");
         assert_eq!(one("Service", "Group"), user, "{name}");
         assert_eq!(one("Service", "UMask"), "0077", "{name}");
@@ -907,11 +967,17 @@ fn the_systemd_units_start_each_role_with_a_deployed_config() {
                 "{name}"
             );
         } else {
-            // Its own state directory (the learner's is nobody else's to write).
-            let state = one("Service", "StateDirectory");
-            assert_eq!(state, format!("fsrl/{role}"), "{name}");
+            // Its own state directory (the learner's is nobody else's to write; each actor
+            // instance its own).
+            let state = instance(&one("Service", "StateDirectory"));
+            let own = if name.contains('@') {
+                format!("fsrl/{role}-0")
+            } else {
+                format!("fsrl/{role}")
+            };
+            assert_eq!(state, own, "{name}");
             assert_eq!(
-                one("Service", "WorkingDirectory"),
+                instance(&one("Service", "WorkingDirectory")),
                 format!("/var/lib/{state}"),
                 "{name}"
             );
@@ -937,6 +1003,9 @@ fn the_systemd_units_start_each_role_with_a_deployed_config() {
             );
             let cred = instance(&one("Service", "LoadCredential"));
             assert_eq!(cred, format!("{password}:/etc/fsrl/{password}"), "{name}");
+        }
+        if name.contains('@') {
+            template_instances_are_isolated(name, &f);
         }
         // systemd's own parser, where it is installed: no unknown keys or sections.
         if analyze {
@@ -972,6 +1041,75 @@ fn the_systemd_units_start_each_role_with_a_deployed_config() {
             "systemd-analyze not installed: the units were checked by this test's parser only"
         );
     }
+}
+
+/// Two instances of a template unit on one host (actors 0 and 1) share nothing a secret or
+/// state could leak through: each its own user and group (allocated by systemd with
+/// `DynamicUser=`, so no `useradd` can make them one), its own credential from its own
+/// root-only file, its own state and working directory, and no supplementary group, shared
+/// writable path or credential directory of the other.
+fn template_instances_are_isolated(name: &str, f: &BTreeMap<(String, String), Vec<String>>) {
+    let get = |k: &str| -> Vec<String> {
+        f.get(&("Service".to_string(), k.to_string()))
+            .cloned()
+            .unwrap_or_default()
+    };
+    assert_eq!(
+        get("DynamicUser"),
+        ["yes"],
+        "{name}: each instance a user of its own (DynamicUser=yes)"
+    );
+    for k in [
+        "SupplementaryGroups",
+        "ReadWritePaths",
+        "BindPaths",
+        "SetCredential",
+        "LoadCredentialEncrypted",
+        "ImportCredential",
+    ] {
+        assert!(get(k).is_empty(), "{name}: {k}= shared between instances");
+    }
+    let at = |id: u32| -> BTreeMap<&str, Vec<String>> {
+        [
+            "User",
+            "Group",
+            "LoadCredential",
+            "StateDirectory",
+            "WorkingDirectory",
+            "RuntimeDirectory",
+            "CacheDirectory",
+            "LogsDirectory",
+        ]
+        .into_iter()
+        .map(|k| {
+            let v = get(k)
+                .iter()
+                .map(|v| v.replace("%i", &id.to_string()))
+                .collect();
+            (k, v)
+        })
+        .collect()
+    };
+    let (a, b) = (at(0), at(1));
+    for (k, va) in &a {
+        let vb = &b[k];
+        for v in va {
+            assert!(
+                !vb.contains(v),
+                "{name}: instances 0 and 1 share {k}={v}: actor 0 could read or write actor 1's"
+            );
+        }
+    }
+    assert_eq!(
+        a["LoadCredential"],
+        ["actor-0.password:/etc/fsrl/actor-0.password"],
+        "{name}"
+    );
+    assert_eq!(
+        b["LoadCredential"],
+        ["actor-1.password:/etc/fsrl/actor-1.password"],
+        "{name}"
+    );
 }
 
 /// The schedules and reward readings in `configs/` are valid run

@@ -10,20 +10,22 @@ use std::path::PathBuf;
 use std::process::Command;
 
 /// The pages whose `sh` blocks are checked.
-const PAGES: [&str; 4] = [
+const PAGES: [&str; 5] = [
     "README.md",
     "docs/TRAINING.md",
     "docs/DISTRIBUTED.md",
     "docs/EVALUATION.md",
+    "deploy/ROBOT.md",
 ];
 
 /// The pages whose relative links are checked (the summary of the reproduction links into it).
-const LINKED_PAGES: [&str; 5] = [
+const LINKED_PAGES: [&str; 6] = [
     "README.md",
     "docs/TRAINING.md",
     "docs/DISTRIBUTED.md",
     "docs/EVALUATION.md",
     "docs/REPRODUCTION.md",
+    "deploy/ROBOT.md",
 ];
 
 /// How many `fsrl` lines may use what the check cannot run without a shell (pipes,

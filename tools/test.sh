@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # The tests: the one command to run them, here and in CI (.ci/run calls it). On a machine with
 # only the Rust toolchain it first provides what the tests need besides cargo:
-#   - Python with `msgpack` and `eclipse-zenoh` (proto/tests/proto/python.rs, tests/distributed.rs
+#   - Python with `msgpack`, `eclipse-zenoh` and `rosbags` (proto/tests/proto/python.rs,
+#     serve/tests/rosbags.rs, tests/distributed.rs
 #     and tests/multihost.rs run `python3` from PATH): a project-local virtual environment .venv/,
 #     created and filled when needed, put first on PATH;
 #   - a TrueType font for the pictures (viz/src/fonts.rs): installed when missing and running as
@@ -15,6 +16,7 @@ cd "$(dirname "$0")/.."
 root=$PWD
 
 zenoh_version=1.10.2
+rosbags_version=0.11.9
 venv="$root/.venv"
 
 say() { echo "tools/test.sh: $*" >&2; }
@@ -46,19 +48,19 @@ if ! venv_works; then
   fi
 fi
 have_modules() {
-  "$venv/bin/python3" - "$zenoh_version" >/dev/null 2>&1 <<'EOF'
+  "$venv/bin/python3" - "$zenoh_version" "$rosbags_version" >/dev/null 2>&1 <<'EOF'
 import sys
 from importlib.metadata import version
-import msgpack, zenoh
-sys.exit(version("eclipse-zenoh") != sys.argv[1])
+import msgpack, zenoh, rosbags
+sys.exit(version("eclipse-zenoh") != sys.argv[1] or version("rosbags") != sys.argv[2])
 EOF
 }
 if ! have_modules; then
-  say "installing msgpack and eclipse-zenoh==$zenoh_version into .venv/ (pip)"
+  say "installing msgpack, eclipse-zenoh==$zenoh_version and rosbags==$rosbags_version into .venv/ (pip)"
   "$venv/bin/python3" -m pip install --quiet --disable-pip-version-check \
-    msgpack "eclipse-zenoh==$zenoh_version" ||
-    die "pip could not install msgpack and eclipse-zenoh==$zenoh_version into .venv/ (network?)"
-  have_modules || die "msgpack or eclipse-zenoh==$zenoh_version still not importable from .venv/"
+    msgpack "eclipse-zenoh==$zenoh_version" "rosbags==$rosbags_version" ||
+    die "pip could not install msgpack, eclipse-zenoh==$zenoh_version and rosbags==$rosbags_version into .venv/ (network?)"
+  have_modules || die "msgpack, eclipse-zenoh==$zenoh_version or rosbags==$rosbags_version still not importable from .venv/"
 fi
 export VIRTUAL_ENV="$venv"
 export PATH="$venv/bin:$PATH"

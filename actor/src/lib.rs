@@ -122,6 +122,11 @@ pub struct ActorStats {
     /// while it wrote a checkpoint on a busy machine): the episode stays in the outbox and is
     /// sent again; never fatal.
     pub publish_timeouts: u64,
+    /// Episodes an earlier learner acknowledged that the learner alive now does not hold (its
+    /// store was restored from an older checkpoint or its log moved aside): lost, reported.
+    pub lost: u64,
+    /// Acknowledgements from a learner other than the one alive now (ignored).
+    pub foreign_acks: u64,
 }
 
 /// Publishes one episode; a publication that times out is counted and logged (at powers of
@@ -357,11 +362,28 @@ pub fn run(
     }
 }
 
-/// Drops what the learner holds and learns where to continue.
+/// Drops what the learner holds and learns where to continue. Only the learner alive now is
+/// listened to (a stale learner's acknowledgements are counted and ignored). When it expects an
+/// episode below the oldest one this actor still holds, the episodes between were acknowledged
+/// by an earlier learner and are not in this one's store: they are reported lost and the
+/// outbox and the numbering go on from the episode the learner expects.
 fn apply_ack(st: &mut State, stats: &mut ActorStats, id: u32, ack: &proto::Ack) {
     if ack.actor != id {
         return;
     }
+    if st.learner != Some(ack.learner) {
+        stats.foreign_acks += 1;
+        if stats.foreign_acks.is_power_of_two() {
+            tracing::warn!(
+                actor = id,
+                from = format_args!("{:016x}", ack.learner),
+                count = stats.foreign_acks,
+                "ignoring an acknowledgement from a learner that is not the one alive (logged at powers of two of the count)"
+            );
+        }
+        return;
+    }
+    resync(st, stats, id, ack.acked_below);
     let before = st.outbox.len();
     st.outbox.retain(|ep, _| {
         let acked = ack.covers(*ep);
@@ -383,6 +405,42 @@ fn apply_ack(st: &mut State, stats: &mut ActorStats, id: u32, ack: &proto::Ack) 
     }
     let next = st.next_episode.get_or_insert(ack.acked_below);
     *next = (*next).max(ack.acked_below);
+}
+
+/// The learner expects `expected` next: if this actor's oldest held episode (or its next one,
+/// with nothing held) is past it, the episodes between are lost (acknowledged by an earlier
+/// learner whose store this one does not have); renumber the held episodes from `expected` on,
+/// in order, and continue the numbering after them.
+fn resync(st: &mut State, stats: &mut ActorStats, id: u32, expected: u64) {
+    let Some(next) = st.next_episode else {
+        return;
+    };
+    let oldest = st.outbox.keys().next().copied().unwrap_or(next);
+    if expected >= oldest {
+        return;
+    }
+    let lost = oldest - expected;
+    stats.lost += lost;
+    tracing::warn!(
+        actor = id,
+        lost,
+        first = expected,
+        last = oldest - 1,
+        "the learner expects episode {expected}, but episodes {expected}..{oldest} were acknowledged by an earlier learner and are not in its store (an older checkpoint, a moved log): they are lost; numbering goes on from {expected}"
+    );
+    let outbox = std::mem::take(&mut st.outbox);
+    let versions = std::mem::take(&mut st.outbox_versions);
+    for (ep, mut batch) in outbox {
+        let renumbered = ep - lost;
+        batch.episode = renumbered;
+        if let Some(v) = versions.get(&ep) {
+            st.outbox_versions.insert(renumbered, *v);
+        }
+        st.outbox.insert(renumbered, batch);
+    }
+    st.next_episode = Some(next - lost);
+    // The held episodes go at once, from the one the learner expects.
+    st.resend_at = (!st.outbox.is_empty()).then(Instant::now);
 }
 
 fn publish_metrics(
@@ -407,9 +465,86 @@ fn publish_metrics(
         ("bad_weights", s.bad_weights as f64),
         ("sim_s", s.sim.as_secs_f64()),
         ("publish_timeouts", s.publish_timeouts as f64),
+        ("episodes_lost", s.lost as f64),
+        ("foreign_acks", s.foreign_acks as f64),
         ("wait_s", s.wait.as_secs_f64()),
     ] {
         m.values.insert(k.to_string(), v);
     }
     p.publish(s.weights_version, &m).map(|_| ())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn state(learner: u64, held: &[u64], next: u64) -> State {
+        let mut st = State {
+            outbox: BTreeMap::new(),
+            outbox_versions: BTreeMap::new(),
+            next_episode: Some(next),
+            learner: Some(learner),
+            net: None,
+            weights_tried: None,
+            resend_at: None,
+        };
+        for &ep in held {
+            st.outbox.insert(ep, proto::fixtures::episode(5, 2, ep));
+            st.outbox_versions.insert(ep, 100 + ep);
+        }
+        st
+    }
+
+    fn ack(learner: u64, acked_below: u64) -> proto::Ack {
+        proto::Ack {
+            actor: 0,
+            acked_below,
+            episodes: Vec::new(),
+            learner,
+        }
+    }
+
+    #[test]
+    fn a_stale_learners_acknowledgement_is_ignored() {
+        let mut st = state(0xa, &[8, 9], 10);
+        let mut stats = ActorStats::default();
+        apply_ack(&mut st, &mut stats, 0, &ack(0xb, 9));
+        apply_ack(&mut st, &mut stats, 0, &ack(0xb, 3));
+        assert_eq!(stats.foreign_acks, 2);
+        assert_eq!(st.outbox.keys().copied().collect::<Vec<_>>(), [8, 9]);
+        assert_eq!((st.next_episode, stats.lost, stats.acked), (Some(10), 0, 0));
+        // The learner alive now is listened to.
+        apply_ack(&mut st, &mut stats, 0, &ack(0xa, 9));
+        assert_eq!(st.outbox.keys().copied().collect::<Vec<_>>(), [9]);
+        assert_eq!(stats.acked, 1);
+    }
+
+    #[test]
+    fn a_learner_expecting_an_earlier_episode_resynchronises_the_numbering() {
+        // Episodes 0..8 were acknowledged by an earlier learner; this one holds 0..5 only.
+        let mut st = state(0xa, &[8, 9], 10);
+        let mut stats = ActorStats::default();
+        apply_ack(&mut st, &mut stats, 0, &ack(0xa, 5));
+        assert_eq!(stats.lost, 3, "episodes 5, 6, 7");
+        assert_eq!(st.outbox.keys().copied().collect::<Vec<_>>(), [5, 6]);
+        assert!(st.outbox.iter().all(|(k, b)| b.episode == *k));
+        assert_eq!(
+            st.outbox_versions
+                .iter()
+                .map(|(k, v)| (*k, *v))
+                .collect::<Vec<_>>(),
+            [(5, 108), (6, 109)],
+            "each episode keeps the policy version that played it"
+        );
+        assert_eq!(st.next_episode, Some(7));
+        assert!(st.resend_at.is_some(), "sent again at once");
+        // In step again: nothing more is lost; acknowledgements drop as usual.
+        apply_ack(&mut st, &mut stats, 0, &ack(0xa, 6));
+        assert_eq!((stats.lost, stats.acked), (3, 1));
+        assert_eq!(st.outbox.keys().copied().collect::<Vec<_>>(), [6]);
+        // Nothing held: the numbering alone goes back.
+        let mut st = state(0xa, &[], 12);
+        apply_ack(&mut st, &mut stats, 0, &ack(0xa, 4));
+        assert_eq!((st.next_episode, stats.lost), (Some(4), 11));
+    }
 }

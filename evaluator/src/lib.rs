@@ -1,6 +1,7 @@
 //! `evaluator`: scores a policy (the ORCA baseline or a value network) on the test seeds of any
 //! settings with the paper's metrics, spreading settings and seeds over threads.
 
+#[cfg(feature = "process")]
 pub mod process;
 
 use policy::lookahead::{HumanModel, Lookahead};

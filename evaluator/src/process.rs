@@ -324,6 +324,11 @@ pub fn run(
     // Weights that do not fit this run's network (counted, skipped; never fatal until the end).
     let mut bad_weights = 0u64;
     let mut unusable: Option<u64> = None;
+    // The last version looked at: when the weights go back (a learner restarted from an older
+    // checkpoint, or a rogue high version that was followed), the due points go back with
+    // them, so no version, however high, silences evaluation or validation until the learner
+    // passes it.
+    let mut last_version: Option<u64> = None;
     loop {
         if stop.load(Ordering::SeqCst) {
             return Ok(EvaluatorExit::Stopped);
@@ -339,6 +344,21 @@ pub fn run(
         let version = w.body.version;
         // Versions advance once per imitation epoch and once per RL episode.
         let trained = version.saturating_sub(il_epochs);
+        if last_version.is_some_and(|last| version < last) {
+            let back = trained.saturating_sub(1);
+            tracing::warn!(
+                version,
+                last = last_version,
+                "the weights went back to an older version; following them"
+            );
+            if opts.every_episodes > 0 {
+                next_due = next_due.min(due_after(back, opts.every_episodes));
+            }
+            if val_every > 0 {
+                next_val_due = next_val_due.min(due_after(back, val_every));
+            }
+        }
+        last_version = Some(version);
         let due = opts.every_episodes > 0 && trained >= next_due && evaluated != Some(version);
         // Imitation bumps the version once per epoch: a validation point needs RL weights.
         let val_due = val_every > 0

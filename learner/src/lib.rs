@@ -8,6 +8,7 @@ pub mod core;
 mod frame;
 pub mod imitation;
 pub mod model;
+#[cfg(feature = "process")]
 pub mod process;
 pub mod replay;
 pub mod runlog;

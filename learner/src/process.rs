@@ -6,7 +6,7 @@
 //! of what the learner has accepted; when the learner is busy training, actors wait instead of
 //! data being dropped.
 
-use std::collections::{BTreeMap, HashMap, HashSet, VecDeque};
+use std::collections::{BTreeMap, BTreeSet, HashMap, HashSet, VecDeque};
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
@@ -112,8 +112,17 @@ struct Learner<'a> {
     control: transport::LatestPublisher<Control>,
     metrics: Publisher<Metrics>,
     wal: Wal,
-    actors_alive: HashSet<proto::Member>,
+    /// The actors alive: id → the instances (liveliness tokens) alive under it. Counted and
+    /// capped by id ([`MAX_ACTORS`]); the watcher keeps at most
+    /// [`transport::MAX_INSTANCES_PER_SENDER`] instances of an id (the newest), so a flood of
+    /// tokens under one id neither fills the table nor crowds out other actors.
+    actors_alive: BTreeMap<u32, BTreeSet<u64>>,
     evaluators_alive: HashSet<proto::Member>,
+    /// Actors not admitted because [`MAX_ACTORS`] ids were alive.
+    alive_refused: u64,
+    /// Liveliness tokens the watcher did not track (too many instances of one id: the oldest
+    /// displaced; too many senders), as of the last metrics tick.
+    alive_tokens_refused: u64,
     window: Window,
     rejected_episodes: u64,
     duplicates: u64,
@@ -186,33 +195,51 @@ impl Learner<'_> {
         }
     }
 
-    /// Tracks who is alive; returns whether the actor membership changed. At most
-    /// [`MAX_ACTORS`] actors are tracked; an actor that leaves loses its ack publisher.
+    /// Tracks who is alive; returns whether the set of actor ids alive changed. At most
+    /// [`MAX_ACTORS`] actor ids are tracked (further ones refused, counted and logged); an
+    /// actor id whose last instance leaves loses its ack publisher.
     fn on_alive(&mut self, ev: AliveEvent) -> bool {
         match ev {
             AliveEvent::Joined(m) if m.sender.role == Role::Actor => {
-                if self.actors_alive.len() >= MAX_ACTORS && !self.actors_alive.contains(&m) {
-                    self.rejected_episodes += 1;
+                let index = m.sender.index;
+                if !self.actors_alive.contains_key(&index) && self.actors_alive.len() >= MAX_ACTORS
+                {
+                    self.alive_refused += 1;
                     warn_sometimes(
-                        "rejected",
-                        self.rejected_episodes,
-                        format_args!("ignoring actor {m}: {MAX_ACTORS} actors are alive"),
+                        "alive",
+                        self.alive_refused,
+                        format_args!("ignoring actor {m}: {MAX_ACTORS} actor ids are alive"),
                     );
                     return false;
                 }
+                let new_id = !self.actors_alive.contains_key(&index);
+                if !self
+                    .actors_alive
+                    .entry(index)
+                    .or_default()
+                    .insert(m.instance)
+                {
+                    return false;
+                }
                 tracing::info!(actor = %m, "actor joined");
-                self.actors_alive.insert(m);
-                self.ack(m.sender.index);
-                true
+                self.ack(index);
+                new_id
             }
             AliveEvent::Left(m) if m.sender.role == Role::Actor => {
-                tracing::warn!(actor = %m, "actor left");
-                self.actors_alive.remove(&m);
                 let index = m.sender.index;
-                if !self.actors_alive.iter().any(|a| a.sender.index == index) {
-                    self.acks.remove(&index);
+                let Some(instances) = self.actors_alive.get_mut(&index) else {
+                    return false;
+                };
+                if !instances.remove(&m.instance) {
+                    return false;
                 }
-                true
+                tracing::warn!(actor = %m, "actor left");
+                if instances.is_empty() {
+                    self.actors_alive.remove(&index);
+                    self.acks.remove(&index);
+                    return true;
+                }
+                false
             }
             AliveEvent::Joined(m) if m.sender.role == Role::Evaluator => {
                 if self.evaluators_alive.len() < MAX_ACTORS {
@@ -230,10 +257,7 @@ impl Learner<'_> {
 
     /// The indices of the actors alive now, ascending, each once.
     fn live_actor_ids(&self) -> Vec<u32> {
-        let mut ids: Vec<u32> = self.actors_alive.iter().map(|m| m.sender.index).collect();
-        ids.sort_unstable();
-        ids.dedup();
-        ids
+        self.actors_alive.keys().copied().collect()
     }
 
     fn phase(&self) -> RunPhase {
@@ -282,6 +306,24 @@ impl Learner<'_> {
         }
     }
 
+    /// Sends the current weights and control again, the same messages (a subscriber that has
+    /// them sees nothing new; one for which they were dropped gets them). Failures counted.
+    fn republish_latest(&mut self) {
+        for (what, sent) in [
+            ("weights", self.weights.republish()),
+            ("control", self.control.republish()),
+        ] {
+            if let Err(e) = sent {
+                self.publish_failures += 1;
+                warn_sometimes(
+                    "republish",
+                    self.publish_failures,
+                    format_args!("publishing the {what} again failed: {e}"),
+                );
+            }
+        }
+    }
+
     fn publish_weights(&mut self) -> Result<(), ProcessError> {
         let version = self.core.counters().policy_version;
         let w = weights_message(self.core.online(), version)
@@ -317,6 +359,7 @@ impl Learner<'_> {
                 actor,
                 acked_below: below,
                 episodes: Vec::new(),
+                learner: self.t.member().instance,
             },
         );
         if let Err(e) = sent {
@@ -392,6 +435,8 @@ impl Learner<'_> {
             ("skipped_batches", self.core.skipped_batches() as f64),
             ("skipped_refreshes", self.core.skipped_refreshes() as f64),
             ("actors_alive", self.actors_alive.len() as f64),
+            ("alive_refused", self.alive_refused as f64),
+            ("alive_tokens_refused", self.alive_tokens_refused as f64),
             ("imitation_done", if c.imitation_done { 1.0 } else { 0.0 }),
         ] {
             m.values.insert(k.to_string(), v);
@@ -583,10 +628,22 @@ pub fn run(
     opts: &LearnerOptions,
     stop: &AtomicBool,
 ) -> Result<LearnerExit, ProcessError> {
+    run_with_probe(transport, spec, opts, stop, crate::store::Probe::none())
+}
+
+/// [`run`] with every file-system step of the run directory reported to `probe` (tests inject a
+/// full disk through it, `crate::store::Probe`).
+pub fn run_with_probe(
+    transport: &Transport,
+    spec: &RunSpec,
+    opts: &LearnerOptions,
+    stop: &AtomicBool,
+    probe: crate::store::Probe,
+) -> Result<LearnerExit, ProcessError> {
     let run = transport.run().clone();
     // The run directory: locked for as long as this function runs (`_lock`), its log recovered
     // from a crash mid-append, corruption refused (`store`).
-    let store = crate::store::Store::open(&opts.run_dir, crate::store::Probe::none())
+    let store = crate::store::Store::open(&opts.run_dir, probe)
         .map_err(|e| io("cannot start the learner")(std::io::Error::other(e)))?;
     let sim_cfg = spec.method_sim();
 
@@ -647,8 +704,10 @@ pub fn run(
         control: transport.latest_publisher(&keys::control(&run))?,
         metrics: transport.publisher(&keys::metrics(&run, transport.sender()))?,
         wal,
-        actors_alive: HashSet::new(),
+        actors_alive: BTreeMap::new(),
         evaluators_alive: HashSet::new(),
+        alive_refused: 0,
+        alive_tokens_refused: 0,
         window: Window {
             outcomes: VecDeque::new(),
             lags: VecDeque::new(),
@@ -784,6 +843,7 @@ pub fn run(
     let every = spec.train.checkpoint_every_episodes;
     let mut checkpoint_due = false;
     let mut pending = VecDeque::new();
+    let mut published_since_tick = true;
 
     while l.phase() == RunPhase::Training {
         if stop.load(Ordering::SeqCst) {
@@ -799,7 +859,14 @@ pub fn run(
         }
         if last_tick.elapsed() >= opts.metrics_interval {
             last_tick = Instant::now();
+            l.alive_tokens_refused = alive.refused_count()?;
             l.publish_metrics()?;
+            if !published_since_tick {
+                // Weights and control are dropped for a subscriber that does not keep up
+                // (`transport`): with nothing newer to send, the current values again.
+                l.republish_latest();
+            }
+            published_since_tick = false;
             // Re-acknowledge periodically: an actor that missed an ack learns where to go on.
             for id in l.live_actor_ids() {
                 l.ack(id);
@@ -872,6 +939,7 @@ pub fn run(
         l.train_stored()?;
         l.publish_weights()?;
         l.publish_control();
+        published_since_tick = true;
         let done = l.core.counters().rl_episodes;
         if (every > 0 && done.is_multiple_of(every)) || checkpoint_due {
             checkpoint_due = !l.try_checkpoint();
@@ -888,16 +956,24 @@ pub fn run(
         "run finished; waiting for actors and evaluators to leave"
     );
     let deadline = Instant::now() + opts.linger;
+    let mut last_repeat = Instant::now();
     while Instant::now() < deadline && !(l.actors_alive.is_empty() && l.evaluators_alive.is_empty())
     {
+        // The final weights and the `Finished` control reach a subscriber they were dropped for.
+        if last_repeat.elapsed() >= opts.metrics_interval {
+            last_repeat = Instant::now();
+            l.republish_latest();
+        }
         if let Some(ev) = alive.recv_timeout(Duration::from_millis(100))? {
             match ev {
+                AliveEvent::Left(m) if m.sender.role == Role::Actor => {
+                    l.on_alive(ev);
+                }
                 AliveEvent::Left(m) => {
-                    l.actors_alive.remove(&m);
                     l.evaluators_alive.remove(&m);
                 }
                 AliveEvent::Joined(m) if m.sender.role == Role::Actor => {
-                    l.actors_alive.insert(m);
+                    l.on_alive(ev);
                 }
                 AliveEvent::Joined(m) if m.sender.role == Role::Evaluator => {
                     l.evaluators_alive.insert(m);

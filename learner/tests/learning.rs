@@ -1,10 +1,13 @@
 //! Tests that prove learning: imitation reduces the loss; after imitation alone SARL succeeds on
 //! env1-invisible far more often than a random policy; a short RL run keeps the loss finite and
 //! moves the weights; a short run is reproducible bit for bit; checkpoints round-trip. `crash`:
-//! the learner's persistence through kills, torn writes, power losses and a full disk.
+//! the learner's persistence through kills, torn writes, power losses and a full disk;
+//! `imitation_retry`: the learner process retries the checkpoint after imitation on a full disk.
 
 #[path = "learning/crash.rs"]
 mod crash;
+#[path = "learning/imitation_retry.rs"]
+mod imitation_retry;
 
 use evaluator::{evaluate, Subject};
 use learner::checkpoint::{self, CheckpointError, RunInfo};

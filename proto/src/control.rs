@@ -14,7 +14,10 @@ pub const MAX_CREDIT_GRANTS: usize = 4096;
 
 /// Episodes of one actor that the learner has accepted (stored durably). The actor keeps every
 /// unacknowledged episode and re-sends it after a learner restart; the learner deduplicates on
-/// (actor, episode).
+/// (actor, episode). `acked_below` is also the next episode the learner expects from the actor:
+/// an actor whose outbox starts past it (episodes an earlier learner acknowledged that this
+/// one's store does not hold: an older checkpoint restored, the log moved aside) reports them
+/// lost and numbers its episodes from there again.
 #[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
 pub struct Ack {
     /// Actor index the acknowledgement is for.
@@ -23,6 +26,11 @@ pub struct Ack {
     pub acked_below: u64,
     /// Further acknowledged episode indices `>= acked_below` (out-of-order arrivals).
     pub episodes: Vec<u64>,
+    /// Which learner sent it: its liveliness instance (`Member::instance`, new at every start).
+    /// An actor takes acknowledgements only from the learner alive now, so a stale learner of
+    /// the same run cannot move it. 0 in messages of senders that predate the field.
+    #[serde(default)]
+    pub learner: u64,
 }
 
 impl Ack {

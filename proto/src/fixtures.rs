@@ -160,6 +160,7 @@ pub fn ack() -> Ack {
         actor: 3,
         acked_below: 40,
         episodes: vec![42, 45],
+        learner: 0x5eed,
     }
 }
 

@@ -321,6 +321,23 @@ pub fn all_alive(run: &RunId) -> String {
     format!("{}/**", family(run, "alive"))
 }
 
+/// `fsrl/serve/<name>/act`: the queryable of `fsrl serve` (an [`crate::serve::ActRequest`]
+/// in, an [`crate::serve::ActReply`] out). `name` is 1–64 of `A–Z a–z 0–9 - _`.
+pub fn serve_act(name: &str) -> Result<String, ValidationError> {
+    let ok = !name.is_empty()
+        && name.len() <= 64
+        && name
+            .chars()
+            .all(|c| c.is_ascii_alphanumeric() || c == '-' || c == '_');
+    if !ok {
+        return Err(ValidationError::InvalidField {
+            field: "serve name",
+            reason: format!("{name:?}: 1-64 of A-Z a-z 0-9 - _"),
+        });
+    }
+    Ok(format!("{ROOT}/serve/{name}/act"))
+}
+
 /// Parses a key produced by [`alive`] for `run`.
 pub fn parse_alive(run: &RunId, key: &str) -> Result<Member, ValidationError> {
     let invalid = || ValidationError::InvalidField {

@@ -44,6 +44,7 @@
 //! | [`keys::metrics`] / [`keys::all_metrics`] | `fsrl/<run>/metrics/<role>/<index>` (`.../**`) | every process | tools | [`Metrics`] | best effort (dropped under congestion) | telemetry |
 //! | [`keys::status`] / [`keys::all_status`] | `fsrl/<run>/status/<role>/<index>` (`.../**`) | every process | learner, tools | [`Status`] | best effort | telemetry |
 //! | [`keys::alive`] / [`keys::all_alive`] | `fsrl/<run>/alive/<role>/<index>/<instance>` (`.../**`) | every process (liveliness token, no payload) | learner, tools | — | join/leave events | telemetry |
+//! | [`keys::serve_act`] | `fsrl/serve/<name>/act` | `fsrl serve` (queryable) | any program (query) | [`serve::ActRequest`] → [`serve::ActReply`] | one reply per query | — |
 //!
 //! Sequence numbers count per (sender, topic) from 0. `policy_version` is the weights version
 //! the content was produced with (0 = no weights yet, e.g. the ORCA demonstrator); for
@@ -59,6 +60,7 @@ pub mod header;
 pub mod ids;
 pub mod keys;
 pub mod reports;
+pub mod serve;
 pub mod transitions;
 pub mod weights;
 

@@ -148,6 +148,14 @@ impl Env {
         self.human_velocity_valid = false;
     }
 
+    /// Puts the episode in an explicit state with `steps` steps already taken, reusing every
+    /// buffer: a state observed from outside (a served policy on a robot), where the step count
+    /// decides the time limit and the time reward as in a simulated episode.
+    pub fn resume_from_scenario(&mut self, seed: u64, scenario: Scenario, steps: u32) {
+        self.reset_to_scenario(seed, scenario);
+        self.steps = steps;
+    }
+
     pub fn config(&self) -> &SimConfig {
         &self.cfg
     }

@@ -6,6 +6,9 @@
 //! bench binary inside a namespace ([`helper_main`]).
 #![allow(dead_code)]
 
+pub mod budget;
+pub mod cgroup;
+
 use std::collections::BTreeMap;
 use std::io::{BufRead, BufReader, Write};
 use std::path::{Path, PathBuf};
@@ -685,6 +688,10 @@ fn absorb(s: &mut Seen, v: &serde_json::Value) {
                 "msg_wall_time_s".into(),
                 v["wall_time_s"].as_f64().unwrap_or(0.0),
             );
+            vals.insert(
+                "msg_env_steps".into(),
+                v["env_steps"].as_f64().unwrap_or(0.0),
+            );
             s.metrics.insert(sender, vals);
         }
         Some("weights") => s.weights.push(v["version"].as_u64().unwrap_or(0)),
@@ -841,6 +848,7 @@ fn observer() -> Result<(), String> {
                 "sender": m.header.sender.to_string(),
                 "episodes": m.body.episodes,
                 "wall_time_s": m.body.wall_time_s,
+                "env_steps": m.body.env_steps,
                 "values": m.body.values,
             }));
         }

@@ -261,10 +261,8 @@ impl ZenohConfig {
         problems
     }
 
-    pub(crate) fn to_zenoh(
-        &self,
-        max_message_bytes: usize,
-    ) -> Result<zenoh::Config, TransportError> {
+    /// The native zenoh config of these settings (`fsrl serve` opens its own session with it).
+    pub fn to_zenoh(&self, max_message_bytes: usize) -> Result<zenoh::Config, TransportError> {
         fn set(c: &mut zenoh::Config, key: &str, value: String) -> Result<(), TransportError> {
             c.insert_json5(key, &value)
                 .map_err(|e| TransportError::Config(format!("zenoh {key} = {value}: {e}")))
@@ -339,8 +337,9 @@ const CREDENTIALS_DIRECTORY: &str = "CREDENTIALS_DIRECTORY";
 
 /// A problem if the secret file `path` may be read (or changed) by anyone but its owner
 /// (`mode & 0o077 != 0`), naming the file, its mode and the fix. Nothing if it cannot be
-/// examined: that is reported as unreadable already.
-fn exposed_secret(what: &str, path: &Path) -> Option<String> {
+/// examined: that is reported as unreadable already. The clients' password files and TLS keys
+/// are checked with it ([`ZenohConfig::problems`]), and so are the router's (`fsrl router`).
+pub fn exposed_secret(what: &str, path: &Path) -> Option<String> {
     #[cfg(unix)]
     {
         use std::os::unix::fs::PermissionsExt as _;

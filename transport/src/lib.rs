@@ -16,6 +16,7 @@
 //! | latest value (late joiner) | queryable serving the last value + query at subscribe | service history of 1 + join event → `update_connections` |
 //! | reliable | `CongestionControl::Block`, reliable links | no overflow, `RetryUntilDelivered` up to `publish_timeout_ms`, then [`TransportError::PublishTimeout`]; a sample that reached no subscriber while one exists (not yet connected) is sent again within the same limit |
 //! | best effort | `CongestionControl::Drop`, express | overflow (oldest dropped) |
+//! | latest value | `CongestionControl::Drop` (a subscriber that never reads cannot stall the publisher; a newer value supersedes a dropped one, [`LatestPublisher::republish`] repeats the last) | history of 1 |
 //!
 //! Liveliness and telemetry always ride on zenoh, even with the iceoryx2 data plane, so that
 //! other tools (Python `eclipse-zenoh`, `z_sub`) see metrics and membership, and because zenoh
@@ -49,7 +50,7 @@ mod iox;
 mod reject;
 mod zenoh_impl;
 
-use std::collections::{BTreeSet, VecDeque};
+use std::collections::{BTreeMap, VecDeque};
 use std::fmt;
 use std::hash::{BuildHasher, Hasher};
 use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
@@ -60,7 +61,8 @@ use proto::{keys, Body, Delivery, Member, Message, Plane, RunId, SenderId, Topic
 use zenoh::sample::SampleKind;
 
 pub use config::{
-    DataPlane, IceoryxConfig, TransportConfig, ZenohAuth, ZenohConfig, ZenohMode, ZenohTls,
+    exposed_secret, DataPlane, IceoryxConfig, TransportConfig, ZenohAuth, ZenohConfig, ZenohMode,
+    ZenohTls,
 };
 pub use error::TransportError;
 pub use iox::StaleCleanup;
@@ -508,6 +510,20 @@ struct Receiver {
     /// For a subscription to a family of per-sender keys (`…/transitions/*`,
     /// `…/metrics/**`): the key each sender must publish under.
     sender_keys: Option<SenderKeys>,
+    /// A topic only the learner publishes (weights, control, acks): a message whose header
+    /// names another role is rejected (a rogue peer or a confused client, whatever its
+    /// version: a weights message at version 10⁶ from an actor never reaches the evaluator).
+    learner_only: bool,
+}
+
+/// Whether `key` is a topic of `run` that only the learner publishes: the weights, the
+/// control, an actor's acknowledgements.
+fn learner_only(run: &RunId, key: &str) -> bool {
+    let ack = keys::ack(run, 0);
+    let ack_family = ack.key_expr().strip_suffix('0').unwrap_or(ack.key_expr());
+    key == keys::weights(run).key_expr()
+        || key == keys::control(run).key_expr()
+        || key.starts_with(ack_family)
 }
 
 /// The concrete key of a sender within a wildcard family: `<prefix><index>` (`…/*`) or
@@ -559,6 +575,7 @@ impl Receiver {
             limit: t.inner.config.max_message_bytes,
             rejected: RejectCounter::new(Arc::clone(&t.inner.rejections), key),
             sender_keys: SenderKeys::of(key),
+            learner_only: learner_only(t.run(), key),
         }
     }
 
@@ -566,7 +583,13 @@ impl Receiver {
     /// message is rejected.
     fn accept<M: Body>(&self, bytes: &[u8], source: &dyn fmt::Display) -> Option<Message<M>> {
         let why = match proto::decode_with_limit::<M>(bytes, self.limit) {
-            Ok(m) if m.header.run == self.run => return Some(m),
+            Ok(m) if m.header.run == self.run => {
+                if self.learner_only && m.header.sender.role != proto::Role::Learner {
+                    Rejection::WrongSender(m.header.sender.to_string())
+                } else {
+                    return Some(m);
+                }
+            }
             Ok(m) => Rejection::WrongRun(m.header.run.to_string()),
             Err(e) => Rejection::Decode(e),
         };
@@ -700,6 +723,19 @@ impl<M: Body> LatestPublisher<M> {
             }
         }
         Ok(header.seq)
+    }
+
+    /// Sends the current value again, byte for byte (same header: a subscriber that has it
+    /// sees nothing new). Over zenoh a value is dropped for a subscriber that does not keep up
+    /// (congestion control `Drop`, so that one that never reads cannot stall the publisher); a
+    /// publisher that has nothing newer to send repeats its current value now and then so that
+    /// the last one reaches everyone. Nothing to do with iceoryx2 (no drops; the service keeps
+    /// the last value). Returns whether a value was sent.
+    pub fn republish(&self) -> Result<bool, TransportError> {
+        match &self.backend {
+            LatestPubBackend::Zenoh(p) => p.republish(),
+            LatestPubBackend::Iox(_) => Ok(false),
+        }
     }
 
     /// Whether at least one subscriber of this topic is known to exist.
@@ -875,10 +911,90 @@ pub enum AliveEvent {
     Left(Member),
 }
 
+/// Most instances of one sender (role and index) an [`AliveWatcher`] tracks at once: a
+/// process restarted before its old token expired, a second process started by mistake. A
+/// further instance displaces the oldest one (the newest wins: a `Left` for the old one, a
+/// `Joined` for the new), so one client that declares any number of tokens under its own id
+/// (the router allows it) costs at most this many members.
+pub const MAX_INSTANCES_PER_SENDER: usize = 4;
+
+/// Most distinct senders an [`AliveWatcher`] tracks; tokens of further senders are refused
+/// (counted, [`AliveWatcher::refused_count`], and logged at powers of two). Room for every actor
+/// id a learner serves ([`proto::control::MAX_CREDIT_GRANTS`]) and as many others.
+pub const MAX_ALIVE_SENDERS: usize = 2 * proto::control::MAX_CREDIT_GRANTS;
+
 #[derive(Default)]
 struct WatcherState {
-    members: BTreeSet<Member>,
+    /// Instances alive per sender, oldest first (at most [`MAX_INSTANCES_PER_SENDER`]; at most
+    /// [`MAX_ALIVE_SENDERS`] senders).
+    members: BTreeMap<SenderId, VecDeque<u64>>,
     pending: VecDeque<AliveEvent>,
+    /// Tokens not tracked: of a sender beyond [`MAX_ALIVE_SENDERS`], or an instance displaced
+    /// by a newer one of the same sender.
+    refused: u64,
+}
+
+impl WatcherState {
+    fn refuse(&mut self, what: std::fmt::Arguments<'_>) {
+        self.refused += 1;
+        if self.refused.is_power_of_two() {
+            tracing::warn!(
+                refused = self.refused,
+                "{what} (liveliness tokens not tracked; logged at powers of two of the count)"
+            );
+        }
+    }
+
+    /// A token appeared: the events it causes (none if known or refused).
+    fn put(&mut self, member: Member) {
+        let (sender, instance) = (member.sender, member.instance);
+        if self
+            .members
+            .get(&sender)
+            .is_some_and(|q| q.contains(&instance))
+        {
+            return;
+        }
+        if !self.members.contains_key(&sender) && self.members.len() >= MAX_ALIVE_SENDERS {
+            self.refuse(format_args!(
+                "ignoring {member}: {MAX_ALIVE_SENDERS} senders are alive"
+            ));
+            return;
+        }
+        let q = self.members.entry(sender).or_default();
+        let displaced = if q.len() >= MAX_INSTANCES_PER_SENDER {
+            q.pop_front()
+        } else {
+            None
+        };
+        q.push_back(instance);
+        if let Some(old) = displaced {
+            let old = Member {
+                sender,
+                instance: old,
+            };
+            self.pending.push_back(AliveEvent::Left(old));
+            self.refuse(format_args!(
+                "{member} displaces {old}: at most {MAX_INSTANCES_PER_SENDER} instances of {sender} are tracked, the newest"
+            ));
+        }
+        self.pending.push_back(AliveEvent::Joined(member));
+    }
+
+    /// A token went away: a `Left` if it was tracked.
+    fn delete(&mut self, member: Member) {
+        let Some(q) = self.members.get_mut(&member.sender) else {
+            return;
+        };
+        let Some(at) = q.iter().position(|i| *i == member.instance) else {
+            return;
+        };
+        q.remove(at);
+        if q.is_empty() {
+            self.members.remove(&member.sender);
+        }
+        self.pending.push_back(AliveEvent::Left(member));
+    }
 }
 
 /// Stream of [`AliveEvent`]s; see [`Transport::watch_alive`].
@@ -899,21 +1015,10 @@ impl AliveWatcher {
                 return;
             }
         };
-        let event = match sample.kind() {
-            SampleKind::Put => {
-                if !state.members.insert(member) {
-                    return;
-                }
-                AliveEvent::Joined(member)
-            }
-            SampleKind::Delete => {
-                if !state.members.remove(&member) {
-                    return;
-                }
-                AliveEvent::Left(member)
-            }
-        };
-        state.pending.push_back(event);
+        match sample.kind() {
+            SampleKind::Put => state.put(member),
+            SampleKind::Delete => state.delete(member),
+        }
     }
 
     fn drain(&self, state: &mut WatcherState) -> Result<(), TransportError> {
@@ -957,6 +1062,18 @@ impl AliveWatcher {
     pub fn members(&self) -> Result<Vec<Member>, TransportError> {
         let mut st = lock(&self.state);
         self.drain(&mut st)?;
-        Ok(st.members.iter().copied().collect())
+        Ok(st
+            .members
+            .iter()
+            .flat_map(|(&sender, q)| q.iter().map(move |&instance| Member { sender, instance }))
+            .collect())
+    }
+
+    /// Liveliness tokens not tracked so far: of a sender beyond [`MAX_ALIVE_SENDERS`], or an
+    /// instance displaced by a newer one of its sender ([`MAX_INSTANCES_PER_SENDER`]).
+    pub fn refused_count(&self) -> Result<u64, TransportError> {
+        let mut st = lock(&self.state);
+        self.drain(&mut st)?;
+        Ok(st.refused)
     }
 }

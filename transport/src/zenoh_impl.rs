@@ -17,6 +17,11 @@ use zenoh::{Session, Wait};
 use crate::config::ZenohConfig;
 use crate::error::{zenoh_err, TransportError};
 
+/// Congestion control of latest-value topics (weights, control), their publications and the
+/// late joiners' queries (whose answers travel with the query's congestion control): dropped
+/// for a receiver whose queue stays full, never waited on.
+const LATEST_CONGESTION: CongestionControl = CongestionControl::Drop;
+
 /// How long a late joiner's query for the current value may take.
 const LATEST_QUERY_TIMEOUT: Duration = Duration::from_secs(5);
 
@@ -27,7 +32,11 @@ pub(crate) fn open(cfg: &ZenohConfig, max_message_bytes: usize) -> Result<Sessio
         .map_err(zenoh_err("open session"))
 }
 
-/// QoS per topic: reliable topics block (never dropped silently), best-effort topics drop.
+/// QoS per topic: reliable topics block (never dropped silently), best-effort topics drop, and
+/// so do latest-value topics (weights, control): a newer value supersedes the one dropped, the
+/// publisher repeats its current value when idle ([`LatestPublisher::republish`]), and a
+/// subscriber that never reads (a hung or hostile client) must not hold up the learner for the
+/// link's `wait_before_close` on every value; zenoh drops for that subscriber only.
 pub(crate) fn declare_publisher(
     session: &Session,
     key: &str,
@@ -41,7 +50,10 @@ pub(crate) fn declare_publisher(
             .priority(Priority::DataLow)
             .express(true),
         // Weights, control and acks overtake bulk transitions.
-        (Delivery::Latest, _) | (Delivery::Reliable, Fanout::OneToMany) => b
+        (Delivery::Latest, _) => b
+            .congestion_control(LATEST_CONGESTION)
+            .priority(Priority::DataHigh),
+        (Delivery::Reliable, Fanout::OneToMany) => b
             .congestion_control(CongestionControl::Block)
             .priority(Priority::DataHigh),
         (Delivery::Reliable, Fanout::ManyToOne) => b
@@ -227,6 +239,8 @@ impl LatestPublisher {
                     Err(p) => p.into_inner().clone(),
                 };
                 if let Some(v) = value {
+                    // Answered with the query's congestion control (zenoh): `Drop` for our
+                    // own subscribers' queries (`LatestSubscriber`).
                     if let Err(e) = query.reply(reply_key.clone(), v).wait() {
                         tracing::debug!(key = %reply_key, error = %e, "latest-value reply failed");
                     }
@@ -243,6 +257,23 @@ impl LatestPublisher {
 
     pub(crate) fn has_subscribers(&self) -> Result<bool, TransportError> {
         has_subscribers(&self.publisher)
+    }
+
+    /// Sends the current value again, the same bytes (subscribers see no new value if they
+    /// have it already). Returns whether there was one.
+    pub(crate) fn republish(&self) -> Result<bool, TransportError> {
+        let value = match self.last.lock() {
+            Ok(g) => g.clone(),
+            Err(p) => p.into_inner().clone(),
+        };
+        let Some(z) = value else {
+            return Ok(false);
+        };
+        self.publisher
+            .put(z)
+            .wait()
+            .map_err(zenoh_err("put latest"))?;
+        Ok(true)
     }
 
     pub(crate) fn put(&self, bytes: Vec<u8>) -> Result<(), TransportError> {
@@ -290,6 +321,7 @@ impl LatestSubscriber {
                 .declare_querier(key.to_string())
                 .target(QueryTarget::BestMatching)
                 .consolidation(ConsolidationMode::None)
+                .congestion_control(LATEST_CONGESTION)
                 .timeout(LATEST_QUERY_TIMEOUT)
                 .wait()
                 .map_err(zenoh_err("declare querier"))?,

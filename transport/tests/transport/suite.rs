@@ -249,6 +249,7 @@ fn acks_reach_only_their_actor(b: Backend) {
             actor: 1,
             acked_below: i,
             episodes: vec![],
+            learner: 1,
         };
         p1.publish(0, &ack).expect("publish");
     }
@@ -256,6 +257,7 @@ fn acks_reach_only_their_actor(b: Backend) {
         actor: 2,
         acked_below: 9,
         episodes: vec![11],
+        learner: 1,
     };
     p2.publish(0, &ack2).expect("publish");
     for i in 0..3 {

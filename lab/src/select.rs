@@ -13,7 +13,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{bail, Context};
 use policy::method::{Select, LOW_DISC_MIN_SUCCESS};
 
-use crate::config::FileConfig;
+use crate::run::RunFile;
 
 pub use learner::model::{snapshot_dir, snapshot_path};
 
@@ -177,7 +177,7 @@ pub fn chosen_snapshot(
 /// snapshot its `train.select` chooses (`rule` overrides the run's own).
 pub fn run_policy(run_dir: &Path, rule: Option<Select>) -> anyhow::Result<PathBuf> {
     let latest = run_dir.join("checkpoints").join("latest.ckpt");
-    let config = FileConfig::load(Some(&run_dir.join("config.toml"))).ok();
+    let config = RunFile::load(&run_dir.join("config.toml")).ok();
     let rule = rule
         .or_else(|| config.as_ref().map(|c| c.train.select))
         .unwrap_or_default();

@@ -1,16 +1,16 @@
-//! `fsrl train` (default mode): one command trains locally with separate processes — a learner,
-//! N actors and an evaluator, children of this process — on the iceoryx2 data plane (or zenoh)
+//! A distributed run on one machine (`fsrl train`'s default mode): a learner, N actors and an
+//! evaluator as child processes of the fsrl executable, on the iceoryx2 data plane (or zenoh)
 //! with zenoh on loopback for metrics and liveliness. No router, no set-up. Progress comes from
-//! the live metrics; Ctrl-C stops every child cleanly (the learner checkpoints), and the same
-//! command with `--resume` goes on.
+//! the live metrics; a stop (the caller's flag, set on Ctrl-C) stops every child cleanly (the
+//! learner checkpoints), and the same run with `resume` goes on. Every process's metrics go to
+//! `processes.jsonl`, the learning curve into `metrics.jsonl`, the timing into `run.json`.
 
 use std::fs::File;
 use std::io::Write;
 use std::net::TcpListener;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context};
@@ -18,8 +18,18 @@ use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use proto::{keys, Role, SenderId};
 use transport::{DataPlane, Transport};
 
-use crate::cmd_train::{final_evaluation, resolve, RunTiming, TrainArgs};
-use crate::config::run_checkpoint;
+use lab::evaluation::final_evaluation;
+use lab::run::{distributed_summary, RunTiming};
+
+use crate::config::{run_checkpoint, Resolved};
+
+/// The data plane as `fsrl train --transport` names it.
+fn plane_name(p: DataPlane) -> &'static str {
+    match p {
+        DataPlane::Zenoh => "zenoh",
+        DataPlane::Iceoryx2 => "iceoryx2",
+    }
+}
 
 /// zenoh's usual port when it is free, else any free loopback port.
 fn learner_port() -> anyhow::Result<u16> {
@@ -109,49 +119,43 @@ fn validation_line(m: &proto::Metrics) -> Option<serde_json::Value> {
     }))
 }
 
-pub fn run(args: TrainArgs) -> anyhow::Result<()> {
-    let stop = Arc::new(AtomicBool::new(false));
-    {
-        let stop = stop.clone();
-        ctrlc::set_handler(move || {
-            if stop.swap(true, Ordering::SeqCst) {
-                std::process::exit(130);
-            }
-            eprintln!("\ninterrupted: stopping the learner (it checkpoints), actors and evaluator; Ctrl-C again to quit at once");
-        })
-        .context("cannot install the Ctrl-C handler")?;
+/// What to launch.
+pub struct Launch {
+    /// The fsrl executable: its `learner`, `actor` and `evaluator` subcommands are the processes.
+    pub exe: PathBuf,
+    /// The run's configuration (validated); the launcher sets the run id, loopback endpoints,
+    /// the data plane and the directories, and writes it as the run's `config.toml`.
+    pub resolved: Resolved,
+    /// The run directory.
+    pub out: PathBuf,
+    /// Continue the run in `out` from its last checkpoint.
+    pub resume: bool,
+    /// Actor processes (at least one).
+    pub actors: u32,
+    pub data_plane: DataPlane,
+    /// Start the evaluator process (validations, kept snapshots).
+    pub evaluator: bool,
+    /// Test episodes per setting of the evaluator's own reports.
+    pub eval_episodes: Option<u32>,
+}
+
+/// Runs the processes to the end of the schedule (or until `stop` is set), then the final
+/// evaluation of the run's policy; prints progress on stderr and the summary on stdout.
+pub fn run(launch: Launch, stop: &AtomicBool) -> anyhow::Result<()> {
+    let Launch {
+        exe,
+        mut resolved,
+        out,
+        resume,
+        actors,
+        data_plane,
+        evaluator,
+        eval_episodes,
+    } = launch;
+    if actors == 0 {
+        bail!("a distributed run needs at least one actor");
     }
-    let mut problems = Vec::new();
-    let data_plane = match args.transport.as_str() {
-        "iceoryx2" => DataPlane::Iceoryx2,
-        "zenoh" => DataPlane::Zenoh,
-        other => {
-            problems.push(format!(
-                "--transport must be iceoryx2 or zenoh, got `{other}`"
-            ));
-            DataPlane::Zenoh
-        }
-    };
-    if args.actors == 0 {
-        problems.push("--actors must be at least 1".to_string());
-    }
-    let mut resolved = match resolve(&args) {
-        Ok(r) => r,
-        Err(e) => {
-            if problems.is_empty() {
-                return Err(e);
-            }
-            bail!("{e:#}\n  - {}", problems.join("\n  - "));
-        }
-    };
-    if !problems.is_empty() {
-        return Err(sim::ConfigError { problems }.into());
-    }
-    let out = args
-        .out
-        .clone()
-        .unwrap_or_else(|| resolved.default_run_dir());
-    run_checkpoint(&out, args.resume)?;
+    run_checkpoint(&out, resume)?;
     let logs = out.join("logs");
     std::fs::create_dir_all(&logs).with_context(|| format!("cannot create {}", logs.display()))?;
 
@@ -183,13 +187,12 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
     f.evaluator.threads = 1;
     // The launcher evaluates the run's chosen policy itself at the end, as `--single-process`.
     f.evaluator.final_report = false;
-    if let Some(n) = args.eval_episodes {
+    if let Some(n) = eval_episodes {
         f.evaluator.episodes_per_setting = n;
     }
     let cfg_path = out.join("config.toml");
     std::fs::write(&cfg_path, toml::to_string(&resolved.file)?)
         .with_context(|| format!("cannot write {}", cfg_path.display()))?;
-    let exe = std::env::current_exe().context("cannot find the fsrl executable")?;
     let cfg_arg = cfg_path.to_string_lossy().to_string();
     let mut children = Children { list: Vec::new() };
     // The learner listens on the known port; every other process connects to it.
@@ -204,7 +207,7 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
         "learner".into(),
         spawn(&exe, "learner", &learner_args, &logs)?,
     ));
-    for id in 0..args.actors {
+    for id in 0..actors {
         let a = vec![
             "actor".to_string(),
             "--config".into(),
@@ -219,7 +222,7 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
             spawn(&exe, &format!("actor-{id}"), &a, &logs)?,
         ));
     }
-    if !args.no_evaluator {
+    if evaluator {
         let e = vec![
             "evaluator".to_string(),
             "--config".into(),
@@ -238,8 +241,8 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
         resolved.method,
         resolved.setting,
         out.display(),
-        args.actors,
-        args.transport,
+        actors,
+        plane_name(data_plane),
         logs.display()
     );
     eprintln!(
@@ -422,14 +425,14 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
     let final_start = Instant::now();
     final_evaluation(&out, &resolved.spec())?;
     let mut timing = RunTiming::read(&out, "distributed");
-    timing.set("actors", args.actors);
-    timing.set("transport", args.transport.as_str());
+    timing.set("actors", actors);
+    timing.set("transport", plane_name(data_plane));
     let warm = warm_start_s.unwrap_or(0.0);
     timing.add_s("warm_start_s", warm);
     timing.add_s("rl_s", (rl_end_s - warm).max(0.0));
     timing.add_s("final_evaluation_s", final_start.elapsed().as_secs_f64());
     timing.add_s("total_s", started.elapsed().as_secs_f64());
-    let summary = process_summary(&last_values, &mut timing);
+    let summary = distributed_summary(&last_values, &mut timing);
     timing.write(&out)?;
     let report = out.join("report.md");
     if let Ok(mut md) = std::fs::read_to_string(&report) {
@@ -443,69 +446,4 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
         out.display()
     );
     Ok(())
-}
-
-/// Where a distributed run's time went, from each process's last metrics: the realised replay
-/// ratio and policy lag, and how long each process waited; recorded into `timing` and returned
-/// as a Markdown section of the run's report. A run whose learner hardly waited was
-/// learner-bound (more actors would not have made it faster); one whose actors hardly waited
-/// was actor-bound.
-fn process_summary(
-    last: &std::collections::BTreeMap<String, proto::Metrics>,
-    timing: &mut RunTiming,
-) -> String {
-    let of = |role: &'static str| {
-        last.iter()
-            .filter(move |(k, _)| k.starts_with(role))
-            .map(|(_, m)| m)
-    };
-    let val = |m: &proto::Metrics, k: &str| m.values.get(k).copied().unwrap_or(0.0);
-    let mut s = String::from("\n## How the run went (distributed)\n\n");
-    if let Some(l) = of("learner").next() {
-        let wall = l.wall_time_s.max(1e-9);
-        for k in [
-            "updates_per_episode",
-            "policy_lag_mean",
-            "policy_lag_p95",
-            "policy_lag_max",
-            "wait_s",
-            "train_s",
-        ] {
-            timing.set(&format!("learner_{k}"), val(l, k));
-        }
-        s += &format!(
-            "- learner: {:.1} updates per accepted episode, policy lag mean {:.2} (p95 {}), waited {:.0} s for episodes and trained {:.0} s of {:.0} s ({:.0} % waiting)\n",
-            val(l, "updates_per_episode"),
-            val(l, "policy_lag_mean"),
-            val(l, "policy_lag_p95"),
-            val(l, "wait_s"),
-            val(l, "train_s"),
-            wall,
-            100.0 * val(l, "wait_s") / wall
-        );
-    }
-    let actors: Vec<&proto::Metrics> = of("actor").collect();
-    if !actors.is_empty() {
-        let wait: f64 = actors.iter().map(|m| val(m, "wait_s")).sum();
-        let sim: f64 = actors.iter().map(|m| val(m, "sim_s")).sum();
-        let wall: f64 = actors.iter().map(|m| m.wall_time_s).sum::<f64>().max(1e-9);
-        timing.set("actors_wait_s", wait);
-        timing.set("actors_sim_s", sim);
-        s += &format!(
-            "- {} actor(s): simulated {sim:.0} s and waited {wait:.0} s in all ({:.0} % waiting)\n",
-            actors.len(),
-            100.0 * wait / wall
-        );
-    }
-    if let Some(e) = of("evaluator").next() {
-        timing.set("validation_s", val(e, "busy_s"));
-        timing.set("evaluator_wait_s", val(e, "wait_s"));
-        s += &format!(
-            "- evaluator: {} validations in {:.0} s, waited {:.0} s\n",
-            val(e, "validations"),
-            val(e, "busy_s"),
-            val(e, "wait_s")
-        );
-    }
-    s
 }

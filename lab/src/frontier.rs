@@ -16,8 +16,8 @@ use anyhow::{bail, Context};
 use policy::method::Select;
 use sim::Setting;
 
-use crate::config::FileConfig;
 use crate::report::{mean_std_cell, welch, Metric};
+use crate::run::RunFile;
 use crate::select::{self, Validation};
 
 /// One run's validated snapshots.
@@ -75,7 +75,7 @@ pub fn read_run(run: &Path, assumed: &Assumed, min_success: f64) -> anyhow::Resu
     let config_path = run.join("config.toml");
     let metrics = run.join("metrics.jsonl");
     let (method, setting, seed, decay_end, rule) = if config_path.is_file() {
-        let c = FileConfig::load(Some(&config_path))?;
+        let c = RunFile::load(&config_path)?;
         let decay = c.train.rl.epsilon_decay_episodes;
         (
             c.run.method,

@@ -1,0 +1,276 @@
+//! Scoring policies on test seeds with the numbers a report needs: per-setting results with
+//! their intervals, episode by episode ([`evaluate_subject`], what `fsrl eval` runs), and the final
+//! evaluation of a finished run on its own setting ([`final_evaluation`], the same in both
+//! training modes).
+
+use std::path::Path;
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::Mutex;
+
+use anyhow::Context;
+use evaluator::{evaluate, Subject};
+use policy::method::RunSpec;
+use sim::{Aggregate, Setting, SimConfig};
+
+use crate::policy_file::{bytes_sha256, subject_label, Input};
+use crate::report::{Report, Samples, SettingReport, SubjectReport};
+
+/// What an evaluation runs: `episodes` test episodes (seeds from `seed_start`) of each of
+/// `settings`, `threads` at once; `orca_safety_space_m` for the ORCA robot and the ORCA humans'
+/// model of it.
+#[derive(Debug, Clone)]
+pub struct EvalPlan {
+    pub settings: Vec<Setting>,
+    pub seed_start: u64,
+    pub episodes: u32,
+    pub threads: usize,
+    pub orca_safety_space_m: f64,
+}
+
+/// The ORCA robot on `sim` as a report's subject.
+pub fn evaluate_orca(
+    sim: &SimConfig,
+    plan: &EvalPlan,
+    done: &(dyn Fn() + Sync),
+) -> anyhow::Result<SubjectReport> {
+    let subject = Subject {
+        method: policy::method::Method::Orca,
+        net: None,
+        gamma: 0.9,
+        human_model: policy::lookahead::HumanModel::Orca,
+        terminal_previews: false,
+        orca_safety_space_m: plan.orca_safety_space_m,
+    };
+    let settings = evaluate_subject(
+        subject,
+        sim,
+        &plan.settings,
+        plan.seed_start,
+        plan.episodes,
+        plan.threads,
+        done,
+    )?;
+    Ok(SubjectReport {
+        label: "orca".into(),
+        method: "orca".into(),
+        checkpoint: None,
+        checkpoint_sha256: None,
+        policy_version: 0,
+        run_seed: None,
+        trained_setting: None,
+        settings,
+    })
+}
+
+/// A policy file read once: the weights evaluated are the bytes whose SHA-256 the report
+/// records, even when the file is replaced meanwhile (a training exporting its model).
+pub struct LoadedPolicy {
+    pub model: learner::model::Model,
+    pub label: String,
+    pub path: std::path::PathBuf,
+    pub sha256: String,
+}
+
+impl LoadedPolicy {
+    pub fn read(input: &Input) -> anyhow::Result<Self> {
+        let path = &input.checkpoint;
+        let bytes =
+            std::fs::read(path).with_context(|| format!("cannot read {}", path.display()))?;
+        let (model, kind) = learner::model::policy_from_bytes(path, &bytes)
+            .with_context(|| format!("cannot load {}", path.display()))?;
+        Ok(Self {
+            label: subject_label(input, &model, kind),
+            model,
+            path: path.clone(),
+            sha256: bytes_sha256(&bytes),
+        })
+    }
+
+    /// The policy on `plan`'s settings, in its own simulator configuration.
+    pub fn evaluate(
+        &self,
+        plan: &EvalPlan,
+        done: &(dyn Fn() + Sync),
+    ) -> anyhow::Result<SubjectReport> {
+        let model = &self.model;
+        let subject = Subject {
+            orca_safety_space_m: plan.orca_safety_space_m,
+            ..Subject::learned(model.method, &model.net, &model.train)
+        };
+        let settings = evaluate_subject(
+            subject,
+            &model.sim,
+            &plan.settings,
+            plan.seed_start,
+            plan.episodes,
+            plan.threads,
+            done,
+        )
+        .with_context(|| format!("evaluating {}", self.path.display()))?;
+        Ok(SubjectReport {
+            label: self.label.clone(),
+            method: model.method.name().to_string(),
+            checkpoint: Some(self.path.display().to_string()),
+            checkpoint_sha256: Some(self.sha256.clone()),
+            policy_version: model.counters.policy_version,
+            run_seed: Some(model.run_seed),
+            trained_setting: Some(model.setting.name().to_string()),
+            settings,
+        })
+    }
+}
+
+/// Runs `episodes` test episodes per setting of one subject, one episode per evaluator call,
+/// and reports every setting with its intervals (per-episode values: Nav. Time, path length and
+/// return samples). `threads` episodes run at once; `done` is called after each episode
+/// (progress). The sums are in seed order, so they do not depend on the thread count.
+pub fn evaluate_subject(
+    subject: Subject<'_>,
+    base: &SimConfig,
+    settings: &[Setting],
+    seed_start: u64,
+    episodes: u32,
+    threads: usize,
+    done: &(dyn Fn() + Sync),
+) -> anyhow::Result<Vec<SettingReport>> {
+    let jobs: Vec<(usize, u64)> = (0..settings.len())
+        .flat_map(|s| (0..episodes as u64).map(move |k| (s, k)))
+        .collect();
+    let results: Mutex<Vec<Option<Aggregate>>> = Mutex::new(vec![None; jobs.len()]);
+    let next = AtomicUsize::new(0);
+    let failure: Mutex<Option<anyhow::Error>> = Mutex::new(None);
+    std::thread::scope(|scope| {
+        for _ in 0..threads.clamp(1, jobs.len().max(1)) {
+            scope.spawn(|| loop {
+                let i = next.fetch_add(1, Ordering::Relaxed);
+                let Some(&(s, k)) = jobs.get(i) else { break };
+                if failure.lock().map(|f| f.is_some()).unwrap_or(true) {
+                    break;
+                }
+                match evaluate(subject, base, &settings[s..=s], seed_start + k, 1, 1) {
+                    Ok(r) => {
+                        if let Ok(mut res) = results.lock() {
+                            res[i] = r.first().map(|r| r.aggregate);
+                        }
+                        done();
+                    }
+                    Err(e) => {
+                        if let Ok(mut f) = failure.lock() {
+                            f.get_or_insert(anyhow::Error::new(e).context(format!(
+                                "{} seed {}",
+                                settings[s],
+                                seed_start + k
+                            )));
+                        }
+                    }
+                }
+            });
+        }
+    });
+    if let Some(e) = failure.into_inner().ok().flatten() {
+        return Err(e);
+    }
+    let results = results
+        .into_inner()
+        .map_err(|_| anyhow::anyhow!("an evaluation thread panicked"))?;
+    let mut out = Vec::with_capacity(settings.len());
+    for (s, setting) in settings.iter().enumerate() {
+        let mut total = Aggregate::default();
+        let mut samples = Samples::default();
+        // Seed order, so the sums do not depend on the thread count.
+        for (i, _) in jobs.iter().enumerate().filter(|(_, j)| j.0 == s) {
+            let a = results[i].ok_or_else(|| anyhow::anyhow!("an episode went missing"))?;
+            total.merge(&a);
+            if a.successes == 1 {
+                samples.nav_times_s.push(a.success_time_s);
+                samples.path_lengths_m.push(a.success_path_m);
+            }
+            samples.returns.push(a.return_sum);
+        }
+        out.push(SettingReport::with_samples(
+            setting.name(),
+            &total,
+            &samples,
+        ));
+    }
+    Ok(out)
+}
+
+/// The final evaluation of a finished run, the same in both modes: the run's policy (its
+/// `train.select` rule: the last checkpoint, or the chosen validation snapshot) on
+/// `train.eval_episodes` test episodes of its own setting; writes `report.json` and `report.md`
+/// into the run directory and prints the table.
+pub fn final_evaluation(out: &Path, spec: &RunSpec) -> anyhow::Result<Report> {
+    let train = &spec.train;
+    eprintln!(
+        "evaluating on {} test episodes of {} ...",
+        train.eval_episodes, spec.setting
+    );
+    let path = crate::select::run_policy(out, None)?;
+    let (model, _) = learner::model::load_policy(&path)
+        .with_context(|| format!("cannot load {}", path.display()))?;
+    let subject = Subject::of_run(spec, &model.net);
+    let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
+    let results = evaluate(
+        subject,
+        &spec.sim,
+        &[spec.setting],
+        train.test_seed_start,
+        train.eval_episodes,
+        threads,
+    )?;
+    let report = Report {
+        method: spec.method.name().to_string(),
+        policy_version: model.counters.policy_version,
+        test_seed_start: train.test_seed_start,
+        settings: results
+            .iter()
+            .map(|r| SettingReport::new(r.setting.name(), &r.aggregate))
+            .collect(),
+    };
+    std::fs::write(
+        out.join("report.json"),
+        serde_json::to_string_pretty(&report)?,
+    )?;
+    let md = report.markdown();
+    std::fs::write(out.join("report.md"), &md)?;
+    println!("{md}");
+    Ok(report)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn an_evaluation_does_not_depend_on_its_thread_count_and_counts_every_episode() {
+        let sim = SimConfig::default();
+        let settings: Vec<Setting> = ["env1-invisible", "env2-visible"]
+            .iter()
+            .map(|s| s.parse().unwrap())
+            .collect();
+        let plan = |threads| EvalPlan {
+            settings: settings.clone(),
+            seed_start: 1000,
+            episodes: 6,
+            threads,
+            orca_safety_space_m: 0.0,
+        };
+        let done = AtomicUsize::new(0);
+        let one = evaluate_orca(&sim, &plan(1), &|| {
+            done.fetch_add(1, Ordering::Relaxed);
+        })
+        .unwrap();
+        assert_eq!(done.load(Ordering::Relaxed), 12);
+        let two = evaluate_orca(&sim, &plan(2), &|| {}).unwrap();
+        assert_eq!(
+            serde_json::to_string(&one).unwrap(),
+            serde_json::to_string(&two).unwrap()
+        );
+        assert_eq!(one.settings.len(), 2);
+        for r in &one.settings {
+            assert_eq!(r.episodes, 6);
+            r.check().unwrap();
+        }
+    }
+}

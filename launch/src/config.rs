@@ -1,0 +1,319 @@
+//! The run configuration file (TOML): one typed struct, unknown keys rejected, every value
+//! defaulted, validated once at start-up with every problem reported together.
+
+use std::path::Path;
+
+use anyhow::Context;
+pub use lab::run::{run_name, RunSection};
+use policy::method::{Method, TrainConfig};
+use serde::{Deserialize, Serialize};
+use sim::{ConfigError, Setting, SimConfig};
+
+/// The checkpoint of the run in `dir`, refusing to overwrite a run without `resume` and to
+/// resume one that does not exist.
+pub fn run_checkpoint(dir: &Path, resume: bool) -> anyhow::Result<std::path::PathBuf> {
+    let ckpt = dir.join("checkpoints").join("latest.ckpt");
+    if ckpt.exists() && !resume {
+        anyhow::bail!(
+            "{} already holds a run (checkpoint {}); pass --resume to continue it or --out to start another",
+            dir.display(),
+            ckpt.display()
+        );
+    }
+    if resume && !ckpt.exists() {
+        anyhow::bail!("--resume: no checkpoint at {}", ckpt.display());
+    }
+    Ok(ckpt)
+}
+
+/// The whole file. Each table belongs to one part of the system.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct FileConfig {
+    pub run: RunSection,
+    /// The simulator (SPEC §2–3).
+    pub sim: SimConfig,
+    /// The training schedule (SPEC §5).
+    pub train: TrainConfig,
+    /// How processes talk (zenoh session, iceoryx2 data plane).
+    pub transport: TransportSection,
+    pub learner: LearnerSection,
+    pub actor: ActorSection,
+    pub evaluator: EvaluatorSection,
+}
+
+/// The transport of every process of the run (`transport::TransportConfig` without the run id
+/// and sender, which come from `[run]` and the role).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct TransportSection {
+    /// "zenoh" (any machines) or "iceoryx2" (shared memory, one machine; telemetry stays on zenoh).
+    pub data_plane: transport::DataPlane,
+    pub zenoh: transport::ZenohConfig,
+    pub iceoryx2: transport::IceoryxConfig,
+    pub max_message_bytes: usize,
+    pub publish_timeout_ms: u64,
+    pub subscriber_queue: usize,
+}
+
+impl Default for TransportSection {
+    fn default() -> Self {
+        let t = transport::TransportConfig::new(
+            proto::RunId::new("local").expect("valid id"),
+            proto::SenderId::new(proto::Role::Monitor, 0),
+        );
+        Self {
+            data_plane: t.data_plane,
+            zenoh: t.zenoh,
+            iceoryx2: t.iceoryx2,
+            max_message_bytes: t.max_message_bytes,
+            publish_timeout_ms: t.publish_timeout_ms,
+            subscriber_queue: t.subscriber_queue,
+        }
+    }
+}
+
+impl TransportSection {
+    /// The transport config of `sender` in run `run_id`.
+    pub fn for_sender(
+        &self,
+        run_id: &str,
+        sender: proto::SenderId,
+    ) -> anyhow::Result<transport::TransportConfig> {
+        let run =
+            proto::RunId::new(run_id).map_err(|e| anyhow::anyhow!("run.id `{run_id}`: {e}"))?;
+        let mut t = transport::TransportConfig::new(run, sender);
+        t.data_plane = self.data_plane;
+        t.zenoh = self.zenoh.clone();
+        t.iceoryx2 = self.iceoryx2.clone();
+        t.max_message_bytes = self.max_message_bytes;
+        t.publish_timeout_ms = self.publish_timeout_ms;
+        t.subscriber_queue = self.subscriber_queue;
+        Ok(t)
+    }
+}
+
+/// The learner process.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct LearnerSection {
+    /// Checkpoints and the write-ahead log (default: `runs/<run.id>`).
+    pub run_dir: Option<std::path::PathBuf>,
+    /// Episodes an actor may run ahead of what the learner has accepted.
+    pub in_flight_per_actor: u64,
+    pub metrics_interval_ms: u64,
+    /// After the run, how long to wait for actors and evaluators to leave.
+    pub linger_ms: u64,
+    /// Threads of the learner's updates (each batch is sharded over them; a run is bit-for-bit
+    /// reproducible for a given count). 0: every core of the host.
+    pub threads: usize,
+}
+
+impl Default for LearnerSection {
+    fn default() -> Self {
+        Self {
+            run_dir: None,
+            in_flight_per_actor: 2,
+            metrics_interval_ms: 1000,
+            linger_ms: 10_000,
+            threads: 0,
+        }
+    }
+}
+
+/// An actor process.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct ActorSection {
+    /// Actor index (unique within the run).
+    pub id: u32,
+}
+
+/// The evaluator process.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct EvaluatorSection {
+    /// Evaluate a snapshot every this many RL episodes (0: only the final weights).
+    pub every_episodes: u64,
+    pub episodes_per_setting: u32,
+    pub seed_start: u64,
+    /// Settings to evaluate (default: all six).
+    pub settings: Vec<String>,
+    /// Worker threads.
+    pub threads: usize,
+    /// Where reports, the learning curve (`validation.jsonl`) and the validated snapshots
+    /// (`checkpoints/validation/`) go (default: `<run_dir>/eval`).
+    pub out_dir: Option<std::path::PathBuf>,
+    /// Evaluate the final weights on `settings` when the run ends (the local launcher turns it
+    /// off and evaluates the run's chosen policy on its own setting, as `--single-process`).
+    pub final_report: bool,
+}
+
+impl Default for EvaluatorSection {
+    fn default() -> Self {
+        Self {
+            every_episodes: 1000,
+            episodes_per_setting: 500,
+            seed_start: 1000,
+            settings: Setting::ALL.iter().map(|s| s.name().to_string()).collect(),
+            threads: 1,
+            out_dir: None,
+            final_report: true,
+        }
+    }
+}
+
+/// A validated run configuration.
+#[derive(Debug, Clone)]
+pub struct Resolved {
+    pub method: Method,
+    pub setting: Setting,
+    pub file: FileConfig,
+}
+
+impl Resolved {
+    pub fn spec(&self) -> policy::method::RunSpec {
+        policy::method::RunSpec {
+            method: self.method,
+            setting: self.setting,
+            sim: self.file.sim.clone(),
+            train: self.file.train.clone(),
+            seed: self.file.run.seed,
+        }
+    }
+
+    /// `runs/<method>-<setting>-s<seed>`: where `fsrl train` puts a run by default.
+    pub fn default_run_dir(&self) -> std::path::PathBuf {
+        std::path::PathBuf::from("runs").join(run_name(
+            self.method,
+            self.setting,
+            self.file.run.seed,
+        ))
+    }
+
+    /// The run directory of the learner (and default home of everything else).
+    pub fn run_dir(&self) -> std::path::PathBuf {
+        self.file
+            .learner
+            .run_dir
+            .clone()
+            .unwrap_or_else(|| std::path::PathBuf::from("runs").join(&self.file.run.id))
+    }
+}
+
+impl FileConfig {
+    /// Reads and parses `path`; a missing path means all defaults.
+    pub fn load(path: Option<&Path>) -> anyhow::Result<Self> {
+        let Some(path) = path else {
+            return Ok(Self::default());
+        };
+        let text = std::fs::read_to_string(path)
+            .with_context(|| format!("cannot read config file {}", path.display()))?;
+        let mut f: Self = toml::from_str(&text)
+            .with_context(|| format!("invalid config file {}", path.display()))?;
+        // Certificates and password files named relative to the config file's directory
+        // (secrets: `$CREDENTIALS_DIRECTORY` first, for systemd `LoadCredential=`).
+        // (Absolute, so that a resolved config written elsewhere, e.g. by `fsrl train`, still
+        // names the same files.)
+        let abs = std::path::absolute(path)
+            .with_context(|| format!("cannot resolve the path {}", path.display()))?;
+        f.transport
+            .zenoh
+            .resolve_paths(abs.parent().unwrap_or(Path::new("/")));
+        Ok(f)
+    }
+
+    /// Validates everything at once.
+    pub fn resolve(self, extra_problems: Vec<String>) -> Result<Resolved, ConfigError> {
+        let mut problems = extra_problems;
+        let method = match self.run.method.parse::<Method>() {
+            Ok(m) => Some(m),
+            Err(e) => {
+                problems.push(e.to_string());
+                None
+            }
+        };
+        let setting = match self.sim.resolve_settings(&[self.run.setting.as_str()]) {
+            Ok(s) => Some(s[0]),
+            Err(e) => {
+                problems.extend(e.problems);
+                None
+            }
+        };
+        problems.extend(self.train.problems());
+        if let Err(e) = proto::RunId::new(self.run.id.as_str()) {
+            problems.push(format!("run.id `{}`: {e}", self.run.id));
+        }
+        for name in &self.evaluator.settings {
+            if let Err(e) = name.parse::<Setting>() {
+                problems.push(format!("evaluator.settings: {e}"));
+            }
+        }
+        if self.evaluator.episodes_per_setting == 0 {
+            problems.push("evaluator.episodes_per_setting must be at least 1".into());
+        }
+        if self.learner.in_flight_per_actor == 0 {
+            problems.push("learner.in_flight_per_actor must be at least 1".into());
+        }
+        if self.sim.humans.count == 0 && method.is_some_and(|m| m.net().is_some()) {
+            problems.push("sim.humans.count must be at least 1 for a learned policy".into());
+        }
+        match (method, setting) {
+            (Some(method), Some(setting)) if problems.is_empty() => Ok(Resolved {
+                method,
+                setting,
+                file: self,
+            }),
+            _ => Err(ConfigError { problems }),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn unknown_keys_are_rejected_with_their_name() {
+        let err = toml::from_str::<FileConfig>("[sim]\ndt = 0.1\n").unwrap_err();
+        assert!(err.to_string().contains("unknown field `dt`"), "{err}");
+        let err = toml::from_str::<FileConfig>("[sim.robot]\nradius_m = \"big\"\n").unwrap_err();
+        assert!(err.to_string().contains("radius_m"), "{err}");
+        let err = toml::from_str::<FileConfig>("[train.rl]\nepisodes = 5\nlr = 0.1\n").unwrap_err();
+        assert!(err.to_string().contains("unknown field `lr`"), "{err}");
+    }
+
+    #[test]
+    fn partial_tables_keep_the_other_defaults() {
+        let c: FileConfig = toml::from_str(
+            "[sim]\ndt_s = 0.1\n[sim.humans]\ncount = 5\n[train.rl]\nepisodes = 7\n",
+        )
+        .unwrap();
+        assert_eq!(c.sim.dt_s, 0.1);
+        assert_eq!(c.sim.humans.count, 5);
+        assert_eq!(c.sim.humans.radius_m, 0.3);
+        assert_eq!(c.train.rl.episodes, 7);
+        assert_eq!(c.train.rl.batch_size, 100);
+    }
+
+    #[test]
+    fn the_resolved_config_round_trips_through_toml() {
+        let c = FileConfig::default();
+        let text = toml::to_string(&c).unwrap();
+        let back: FileConfig = toml::from_str(&text).unwrap();
+        assert_eq!(back, c);
+    }
+
+    #[test]
+    fn every_problem_of_a_run_is_reported() {
+        let mut c = FileConfig::default();
+        c.run.method = "dqn".into();
+        c.run.setting = "env4-visible".into();
+        c.train.gamma = 2.0;
+        c.sim.dt_s = 0.0;
+        let err = c
+            .resolve(vec!["--rl-episodes must be at least 1".into()])
+            .unwrap_err();
+        assert_eq!(err.problems.len(), 5, "{err}");
+    }
+}

@@ -1,0 +1,228 @@
+//! `fsrl serve`'s speed: one decision of the served policy (`ServedPolicy::decide`, the
+//! evaluator's lookahead on the observed state) and the loop from the last input published to
+//! the command received, over zenoh on loopback (people then odometry, CDR, bridge keys,
+//! `Trigger::Odometry`: the decision starts when the odometry arrives), for 5 and 10 people.
+//! Prints p50/p99 in ms. `cargo bench --workspace --bench serve`.
+
+use std::path::Path;
+use std::sync::mpsc;
+use std::time::{Duration, Instant};
+
+use serve::msg::{self, Twist};
+use serve::people::PersonObs;
+use serve::served::{Observation, RobotObs, ServedPolicy};
+use sim::{Env, Setting};
+use zenoh::Wait;
+
+const MODEL: &str = concat!(
+    env!("CARGO_MANIFEST_DIR"),
+    "/../models/fsrl-env1-invisible-s0.fsrlm"
+);
+const SAMPLES: usize = 400;
+
+fn pct(v: &mut [f64], p: f64) -> f64 {
+    v.sort_by(|a, b| a.total_cmp(b));
+    v[((v.len() - 1) as f64 * p).round() as usize]
+}
+
+/// States along ORCA episodes with `people` humans (the states the policy meets).
+fn states(people: usize) -> Vec<Env> {
+    let (model, _) = learner::model::load_policy(Path::new(MODEL)).unwrap();
+    let mut cfg = model.method_sim();
+    cfg.humans.count = people;
+    let setting: Setting = "env1-invisible".parse().unwrap();
+    let mut env = Env::new(cfg, setting, 1000).unwrap();
+    let mut out = Vec::new();
+    let mut seed = 1000;
+    while out.len() < SAMPLES {
+        env.reset(seed).unwrap();
+        while !env.is_done() && out.len() < SAMPLES {
+            out.push(env.clone());
+            let a = env.orca_robot_action(0.0);
+            env.step(a).unwrap();
+        }
+        seed += 1;
+    }
+    out
+}
+
+fn observation(env: &Env) -> Observation {
+    let r = env.robot();
+    Observation {
+        robot: RobotObs {
+            position: r.position,
+            velocity: r.velocity,
+            heading_rad: r.heading_rad,
+        },
+        goal: r.goal,
+        humans: env
+            .humans()
+            .iter()
+            .map(|h| PersonObs {
+                position: h.position,
+                velocity: h.velocity,
+                radius_m: Some(h.radius_m),
+                goal: Some(h.goal),
+                v_pref_mps: Some(h.v_pref_mps),
+                standing: Some(h.standing),
+            })
+            .collect(),
+        steps: env.steps(),
+    }
+}
+
+fn decisions(people: usize) {
+    let mut served = ServedPolicy::load(Path::new(MODEL), None).unwrap();
+    let obs: Vec<Observation> = states(people).iter().map(observation).collect();
+    for o in obs.iter().take(20) {
+        served.decide(o).unwrap();
+    }
+    let mut ms: Vec<f64> = obs
+        .iter()
+        .map(|o| {
+            let t = Instant::now();
+            served.decide(o).unwrap();
+            t.elapsed().as_secs_f64() * 1e3
+        })
+        .collect();
+    println!(
+        "decision, {people:>2} people: p50 {:.3} ms, p99 {:.3} ms ({} states)",
+        pct(&mut ms, 0.5),
+        pct(&mut ms, 0.99),
+        ms.len()
+    );
+}
+
+fn free_port() -> u16 {
+    std::net::TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port()
+}
+
+fn input_to_command(people: usize) {
+    let port = free_port();
+    let opts = serve::ServeOptions {
+        model: MODEL.into(),
+        name: "bench".into(),
+        style: serve::Ros2Style::Bridge { namespace: None },
+        topics: serve::Topics::default(),
+        people_format: serve::PeopleFormat::People,
+        trigger: serve::Trigger::Odometry,
+        period: None,
+        stale_periods: 1e6,
+        limits: Default::default(),
+        robot_visible: None,
+        zenoh: transport::ZenohConfig::peer(vec![format!("tcp/127.0.0.1:{port}")], vec![]),
+    };
+    let (tx, rx) = serve::node::channel();
+    let stop = tx.clone();
+    let server = std::thread::spawn(move || serve::run(&opts, (tx, rx)).unwrap());
+    let cfg = transport::ZenohConfig::peer(
+        vec!["tcp/127.0.0.1:0".into()],
+        vec![format!("tcp/127.0.0.1:{port}")],
+    )
+    .to_zenoh(1 << 22)
+    .unwrap();
+    let session = zenoh::open(cfg).wait().unwrap();
+    let (ctx, cmd) = mpsc::channel();
+    let _sub = session
+        .declare_subscriber("cmd_vel")
+        .callback(move |s| {
+            let _ = ctx.send(msg::decode::<Twist>(&s.payload().to_bytes()).is_ok());
+        })
+        .wait()
+        .unwrap();
+    let odom = session.declare_publisher("odom").wait().unwrap();
+    let ppl = session.declare_publisher("people").wait().unwrap();
+    let goal = session.declare_publisher("goal_pose").wait().unwrap();
+    let deadline = Instant::now() + Duration::from_secs(30);
+    while !(odom.matching_status().wait().unwrap().matching()
+        && ppl.matching_status().wait().unwrap().matching())
+    {
+        assert!(Instant::now() < deadline, "the server did not subscribe");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let envs = states(people);
+    let mut ms = Vec::new();
+    for (k, env) in envs.iter().enumerate() {
+        let t_s = 1000.0 + k as f64 * 0.25;
+        let g = env.robot().goal;
+        // A new goal each state (stamped at the state), so every state is a fresh episode start.
+        let goal_msg = msg::PoseStamped {
+            header: msg::Header {
+                stamp: msg::Time::from_secs_f64(t_s),
+                frame_id: "odom".into(),
+            },
+            pose: msg::Pose {
+                position: msg::Point {
+                    x: g.x,
+                    y: g.y,
+                    z: 0.0,
+                },
+                ..Default::default()
+            },
+        };
+        goal.put(msg::encode(&goal_msg).unwrap()).wait().unwrap();
+        let header = msg::Header {
+            stamp: msg::Time::from_secs_f64(t_s),
+            frame_id: "odom".into(),
+        };
+        let people_msg = msg::People {
+            header: header.clone(),
+            people: observation(env)
+                .humans
+                .iter()
+                .enumerate()
+                .map(|(i, p)| serve::people::person_with_tags(i.to_string(), p))
+                .collect(),
+        };
+        let r = env.robot();
+        let mut o = msg::Odometry {
+            header,
+            child_frame_id: "base_link".into(),
+            ..Default::default()
+        };
+        o.pose.pose.position = msg::Point {
+            x: r.position.x,
+            y: r.position.y,
+            z: 0.0,
+        };
+        o.pose.pose.orientation = msg::Quaternion::from_yaw(r.heading_rad);
+        let (s, c) = r.heading_rad.sin_cos();
+        o.twist.twist.linear.x = r.velocity.x * c + r.velocity.y * s;
+        o.twist.twist.linear.y = -r.velocity.x * s + r.velocity.y * c;
+        ppl.put(msg::encode(&people_msg).unwrap()).wait().unwrap();
+        let odom_bytes = msg::encode(&o).unwrap();
+        while cmd.try_recv().is_ok() {}
+        let t = Instant::now();
+        odom.put(odom_bytes).wait().unwrap();
+        let ok = cmd.recv_timeout(Duration::from_secs(5)).expect("a command");
+        assert!(ok);
+        if k >= 20 {
+            ms.push(t.elapsed().as_secs_f64() * 1e3);
+        }
+    }
+    println!(
+        "last input -> command over loopback, {people:>2} people: p50 {:.3} ms, p99 {:.3} ms ({} commands)",
+        pct(&mut ms, 0.5),
+        pct(&mut ms, 0.99),
+        ms.len()
+    );
+    let _ = stop.send(serve::node::Event::Shutdown);
+    let _ = server.join();
+}
+
+fn main() {
+    // `cargo bench` passes --bench; `cargo test` runs benches too (with no argument): skip then.
+    if !std::env::args().any(|a| a == "--bench") {
+        return;
+    }
+    for people in [5, 10] {
+        decisions(people);
+    }
+    for people in [5, 10] {
+        input_to_command(people);
+    }
+}

@@ -1,0 +1,30 @@
+//! `serve`: a trained policy driving a robot, and a simulated robot to drive.
+//!
+//! - [`msg`]: the ROS 2 messages (odometry, goal, velocity command, three people formats) and
+//!   their CDR bytes (`cdr-encoding`, with the encapsulation header);
+//! - [`ros2`]: ROS 2 topics as zenoh keys, for `zenoh-bridge-ros2dds` and for `rmw_zenoh`
+//!   (type names and hashes per distro, the 33-byte attachment, liveliness tokens);
+//! - [`people`]: tracked people from `people_msgs/People`, `spencer_tracking_msgs/TrackedPersons`
+//!   or `pedsim_msgs/AgentStates`;
+//! - [`served`]: [`served::ServedPolicy`], a model file's policy deciding from an observed state
+//!   through the evaluator's own lookahead (same state, same action as `fsrl eval`);
+//! - [`control`]: the loop's logic without IO: staleness, goal and frame checks, limits, the
+//!   reason for every zero command, counting of undecodable input;
+//! - [`node`]: `fsrl serve` on zenoh ([`node::run`]): subscribers, the command publisher, the
+//!   queryable `fsrl/serve/<name>/act` (MessagePack, `proto::serve`), liveliness;
+//! - [`standin`]: `fsrl sim --as-robot` ([`standin::run`]).
+//!
+//! Depends on `sim`, `policy`, `learner` (model files), `proto` and `transport` (zenoh
+//! settings); opens its own zenoh session, as ROS 2 traffic is not fsrl's typed messages.
+
+pub mod control;
+pub mod msg;
+pub mod node;
+pub mod people;
+pub mod ros2;
+pub mod served;
+pub mod standin;
+
+pub use node::{run, ServeError, ServeOptions, Topics, Trigger};
+pub use people::PeopleFormat;
+pub use ros2::{Distro, Ros2Style};
