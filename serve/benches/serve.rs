@@ -9,8 +9,7 @@ use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
 use serve::msg::{self, Twist};
-use serve::people::PersonObs;
-use serve::served::{Observation, RobotObs, ServedPolicy};
+use serve::served::{Observation, ServedPolicy};
 use sim::{Env, Setting};
 use zenoh::Wait;
 
@@ -46,34 +45,9 @@ fn states(people: usize) -> Vec<Env> {
     out
 }
 
-fn observation(env: &Env) -> Observation {
-    let r = env.robot();
-    Observation {
-        robot: RobotObs {
-            position: r.position,
-            velocity: r.velocity,
-            heading_rad: r.heading_rad,
-        },
-        goal: r.goal,
-        humans: env
-            .humans()
-            .iter()
-            .map(|h| PersonObs {
-                position: h.position,
-                velocity: h.velocity,
-                radius_m: Some(h.radius_m),
-                goal: Some(h.goal),
-                v_pref_mps: Some(h.v_pref_mps),
-                standing: Some(h.standing),
-            })
-            .collect(),
-        steps: env.steps(),
-    }
-}
-
 fn decisions(people: usize) {
     let mut served = ServedPolicy::load(Path::new(MODEL), None).unwrap();
-    let obs: Vec<Observation> = states(people).iter().map(observation).collect();
+    let obs: Vec<Observation> = states(people).iter().map(Observation::of_env).collect();
     for o in obs.iter().take(20) {
         served.decide(o).unwrap();
     }
@@ -171,7 +145,7 @@ fn input_to_command(people: usize) {
         };
         let people_msg = msg::People {
             header: header.clone(),
-            people: observation(env)
+            people: Observation::of_env(env)
                 .humans
                 .iter()
                 .enumerate()

@@ -49,6 +49,20 @@ pub struct PersonObs {
     pub standing: Option<bool>,
 }
 
+impl PersonObs {
+    /// A simulated human as a tracker that knows everything would report it.
+    pub fn of_human(h: &sim::HumanState) -> PersonObs {
+        PersonObs {
+            position: h.position,
+            velocity: h.velocity,
+            radius_m: Some(h.radius_m),
+            goal: Some(h.goal),
+            v_pref_mps: Some(h.v_pref_mps),
+            standing: Some(h.standing),
+        }
+    }
+}
+
 /// A decoded people message.
 #[derive(Debug, Clone, PartialEq)]
 pub struct PeopleObs {

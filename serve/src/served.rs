@@ -42,6 +42,24 @@ pub struct Observation {
     pub steps: u32,
 }
 
+impl Observation {
+    /// What a perfect tracker would report of `env`: the robot, its goal, and every human with
+    /// its radius, goal, preferred speed and standing flag (the stand-in, tests and benchmarks).
+    pub fn of_env(env: &Env) -> Observation {
+        let r = env.robot();
+        Observation {
+            robot: RobotObs {
+                position: r.position,
+                velocity: r.velocity,
+                heading_rad: r.heading_rad,
+            },
+            goal: r.goal,
+            humans: env.humans().iter().map(PersonObs::of_human).collect(),
+            steps: env.steps(),
+        }
+    }
+}
+
 /// A body-frame velocity command for one control period.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct Command {
@@ -335,7 +353,6 @@ impl ServedPolicy {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::people::PersonObs;
     use policy::joint::HumanOrder;
     use policy::lookahead::HumanModel;
 
@@ -343,31 +360,6 @@ mod tests {
         let path =
             Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/fsrl-env1-invisible-s0.fsrlm");
         learner::model::load_policy(&path).unwrap().0
-    }
-
-    fn obs_of(env: &Env) -> Observation {
-        let r = env.robot();
-        Observation {
-            robot: RobotObs {
-                position: r.position,
-                velocity: r.velocity,
-                heading_rad: r.heading_rad,
-            },
-            goal: r.goal,
-            humans: env
-                .humans()
-                .iter()
-                .map(|h| PersonObs {
-                    position: h.position,
-                    velocity: h.velocity,
-                    radius_m: Some(h.radius_m),
-                    goal: Some(h.goal),
-                    v_pref_mps: Some(h.v_pref_mps),
-                    standing: Some(h.standing),
-                })
-                .collect(),
-            steps: env.steps(),
-        }
     }
 
     /// Along whole evaluator episodes, the served decision from the observed state is the
@@ -389,7 +381,7 @@ mod tests {
             env.reset(seed).unwrap();
             while !env.is_done() {
                 let want = la.decide(&mut env, &m.net).unwrap();
-                let got = served.decide(&obs_of(&env)).unwrap();
+                let got = served.decide(&Observation::of_env(&env)).unwrap();
                 assert_eq!(got.action, want.action, "seed {seed} step {}", env.steps());
                 assert_eq!(got.value, want.value);
                 env.step(want.action).unwrap();

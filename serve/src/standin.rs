@@ -126,19 +126,7 @@ fn people_of(env: &Env, t_s: f64) -> People {
             .humans()
             .iter()
             .enumerate()
-            .map(|(i, h)| {
-                person_with_tags(
-                    i.to_string(),
-                    &PersonObs {
-                        position: h.position,
-                        velocity: h.velocity,
-                        radius_m: Some(h.radius_m),
-                        goal: Some(h.goal),
-                        v_pref_mps: Some(h.v_pref_mps),
-                        standing: Some(h.standing),
-                    },
-                )
-            })
+            .map(|(i, h)| person_with_tags(i.to_string(), &PersonObs::of_human(h)))
             .collect(),
     }
 }
