@@ -12,7 +12,7 @@ use anyhow::Context;
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use learner::checkpoint;
 use learner::LearnerCore;
-use policy::method::RunSpec;
+use policy::method::{RunSpec, Select};
 use transport::DataPlane;
 
 use crate::config::{run_checkpoint, Resolved, RunOverrides};
@@ -205,7 +205,7 @@ fn distributed(args: TrainArgs) -> anyhow::Result<()> {
     if args.actors == 0 {
         problems.push("--actors must be at least 1".to_string());
     }
-    let resolved = match resolve(&args) {
+    let mut resolved = match resolve(&args) {
         Ok(r) => r,
         Err(e) => {
             if problems.is_empty() {
@@ -216,6 +216,16 @@ fn distributed(args: TrainArgs) -> anyhow::Result<()> {
     };
     if !problems.is_empty() {
         return Err(sim::ConfigError { problems }.into());
+    }
+    let select = &mut resolved.file.train.select;
+    if args.no_evaluator && *select != Select::Last {
+        // Without the evaluator nothing is validated and no snapshot is kept: the run's policy
+        // can only be its last weights (recorded in the run's config.toml).
+        eprintln!(
+            "note: --no-evaluator: no validations, so the run's policy is its last weights (train.select = \"last\" instead of \"{}\")",
+            select.name()
+        );
+        *select = Select::Last;
     }
     let out = args
         .out

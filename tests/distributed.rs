@@ -701,3 +701,40 @@ fn hostile_but_well_formed_episodes_neither_stop_nor_poison_the_learner() {
     let lines = log.matches("while 0 is due").count();
     assert!(lines <= 14, "{lines} log lines for 4097 refusals");
 }
+
+/// Fair intake (Experiment 16): iceoryx2 serves its publishers' queues in a fixed order, so a
+/// learner that took one message per round of updates handed over actor 0's next episode every
+/// time and starved actor 1 until its publications timed out. The learner now takes in everything
+/// pending before each round and trains in arrival order: over 40 RL episodes at the default 20
+/// updates each (the learner, not the actors, sets the pace) both actors get a fair share.
+#[test]
+fn two_actors_share_the_learner_fairly_over_iceoryx2() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("fair");
+    let o = Command::new(env!("CARGO_BIN_EXE_fsrl"))
+        .args(["train", "--method", "sarl", "--setting", "env1-invisible"])
+        .args(["--actors", "2", "--transport", "iceoryx2", "--no-evaluator"])
+        .args([
+            "--il-episodes",
+            "6",
+            "--il-epochs",
+            "1",
+            "--rl-episodes",
+            "40",
+        ])
+        .args(["--eval-episodes", "2", "--out"])
+        .arg(&out)
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{stderr}");
+    let loaded = learner::checkpoint::load(&out.join("checkpoints/latest.ckpt")).unwrap();
+    assert_eq!(loaded.core.counters().rl_episodes, 40);
+    let accepted = |k: u32| loaded.run.accepted_below.get(&k).copied().unwrap_or(0);
+    let (a0, a1) = (accepted(0), accepted(1));
+    assert_eq!(a0 + a1, 40, "{:?}", loaded.run.accepted_below);
+    assert!(
+        a0.min(a1) >= 10,
+        "one actor was starved: actor 0 {a0}, actor 1 {a1} of 40 episodes"
+    );
+}
