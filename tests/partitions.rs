@@ -638,7 +638,90 @@ fn scenario(c: &mut Cluster, tl: &mut Timeline) -> Result<(), String> {
     let d = c.wait_progress("progress after the slow actor", &after)?;
     tl.recoveries
         .push(("slow, then frozen actor".into(), d.as_secs_f64()));
+
+    // 5. The learner killed (SIGKILL) mid-run and started again: it resumes from its checkpoint
+    //    and write-ahead log, cuts its training log back, and the actors re-send what it never
+    //    acknowledged.
+    let before = c.actor_logs();
+    c.procs.kill("learner");
+    let _ = std::fs::rename(c.log("learner"), c.log("learner-killed"));
+    c.start_learner();
+    c.say("learner killed (SIGKILL) and started again");
+    let d = c.wait_progress("progress after the learner's restart", &before)?;
+    tl.recoveries
+        .push(("learner killed and restarted".into(), d.as_secs_f64()));
     Ok(())
+}
+
+/// The learner's training log, episode by episode: its RL lines name the actor that played each
+/// episode and the episode's index in that actor's numbering. Every actor's trained episodes must
+/// be exactly 0..n, each once and in order (a restarted learner cuts its log back to its
+/// checkpoint and trains the log's episodes again), the lines' own count 0..N with N the sum of
+/// the actors' n, and every trained episode one the store holds as accepted.
+fn trained(run_dir: &Path, durable: &Durable) -> (Vec<String>, String) {
+    let mut p = Vec::new();
+    let text = match std::fs::read_to_string(run_dir.join("metrics.jsonl")) {
+        Ok(t) => t,
+        Err(e) => return (vec![format!("reading metrics.jsonl: {e}")], String::new()),
+    };
+    let mut per_actor: BTreeMap<u64, Vec<u64>> = BTreeMap::new();
+    let mut count = 0u64;
+    for (i, line) in text.lines().enumerate() {
+        let Ok(v) = serde_json::from_str::<serde_json::Value>(line) else {
+            p.push(format!("metrics.jsonl line {}: not JSON", i + 1));
+            continue;
+        };
+        if v["phase"] != "rl" {
+            continue;
+        }
+        if v["episode"].as_u64() != Some(count) {
+            p.push(format!(
+                "metrics.jsonl line {}: RL episode {} where {count} was due",
+                i + 1,
+                v["episode"]
+            ));
+        }
+        count += 1;
+        match (v["actor"].as_u64(), v["actor_episode"].as_u64()) {
+            (Some(a), Some(e)) => per_actor.entry(a).or_default().push(e),
+            _ => p.push(format!(
+                "metrics.jsonl line {}: no actor or actor_episode",
+                i + 1
+            )),
+        }
+    }
+    let mut summary = format!("training log: {count} RL episodes");
+    let mut sum = 0;
+    for (a, eps) in &per_actor {
+        let n = eps.len() as u64;
+        sum += n;
+        if !eps.iter().copied().eq(0..n) {
+            let mut seen = BTreeSet::new();
+            let twice: Vec<u64> = eps.iter().filter(|e| !seen.insert(**e)).copied().collect();
+            p.push(format!(
+                "actor {a}: trained episodes are not 0..{n} once each in order (twice: {twice:?}; first ones: {:?})",
+                &eps[..eps.len().min(20)]
+            ));
+        }
+        let accepted: BTreeSet<u64> = durable.accepted(*a as u32).into_iter().collect();
+        let unknown: Vec<u64> = eps
+            .iter()
+            .filter(|e| !accepted.contains(e))
+            .copied()
+            .collect();
+        if !unknown.is_empty() {
+            p.push(format!(
+                "actor {a}: trained episodes the store does not hold as accepted: {unknown:?}"
+            ));
+        }
+        summary += &format!(", actor {a}: 0..{n} ({} accepted)", accepted.len());
+    }
+    if sum != count {
+        p.push(format!(
+            "the actors' trained episodes add up to {sum}, the log has {count}"
+        ));
+    }
+    (p, summary)
 }
 
 #[test]
@@ -705,7 +788,13 @@ fn every_episode_an_actor_dropped_on_an_ack_is_in_the_learners_store_despite_par
     let logs = c.actor_logs();
     let durable = Durable::read(&c.run_dir, &c.run_id);
     let (problems, summary) = match &durable {
-        Ok(d) => account(&logs, d),
+        Ok(d) => {
+            let (mut p, mut s) = account(&logs, d);
+            let (tp, ts) = trained(&c.run_dir, d);
+            p.extend(tp);
+            s = format!("{s}\n{ts}");
+            (p, s)
+        }
         Err(e) => (
             vec![format!("reading the learner's store: {e}")],
             String::new(),

@@ -149,7 +149,8 @@ struct Learner<'a> {
     log: std::fs::File,
     wall0: Duration,
     /// The last stored episode: outcome, steps, return, ε of its index (for its log line).
-    stored: Option<(Outcome, u32, f64, f64)>,
+    /// The episode just stored: (outcome, steps, return, ε, actor, the actor's episode index).
+    stored: Option<(Outcome, u32, f64, f64, u32, u64)>,
     /// Log lines that could not be written (a full disk): counted, never fatal.
     log_failures: u64,
 }
@@ -453,7 +454,8 @@ impl Learner<'_> {
         if let Some(last) = self.window.losses.back_mut() {
             *last = self.last_loss;
         }
-        let Some((outcome, steps, return_sum, epsilon)) = self.stored.take() else {
+        let Some((outcome, steps, return_sum, epsilon, actor, actor_episode)) = self.stored.take()
+        else {
             return Ok(());
         };
         let c = self.core.counters();
@@ -472,6 +474,8 @@ impl Learner<'_> {
             env_steps: c.env_steps,
             replay_size: self.core.replay().len(),
             wall_s: (self.wall0 + self.start.elapsed()).as_secs_f64(),
+            actor: Some(actor),
+            actor_episode: Some(actor_episode),
         };
         self.log_line(&line);
         Ok(())
@@ -581,7 +585,14 @@ impl Learner<'_> {
         let epsilon = self.core.epsilon();
         self.core.commit_episode(prepared);
         self.accepted_below.insert(actor, next);
-        self.stored = Some((ep.outcome, ep.summary.steps, ep.summary.return_sum, epsilon));
+        self.stored = Some((
+            ep.outcome,
+            ep.summary.steps,
+            ep.summary.return_sum,
+            epsilon,
+            actor,
+            batch.episode,
+        ));
         let lag = self.core.counters().policy_version.saturating_sub(version);
         self.window.push(ep.outcome, lag, self.last_loss);
         if log {

@@ -27,6 +27,12 @@ pub struct RlLine<'a> {
     pub env_steps: u64,
     pub replay_size: usize,
     pub wall_s: f64,
+    /// The actor that played the episode and its index in that actor's numbering (the learner
+    /// process; absent in a single-process run, whose log stays as it was).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub actor: Option<u32>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub actor_episode: Option<u64>,
 }
 
 /// The imitation lines of a run's log, gathered from the warm start's progress and written

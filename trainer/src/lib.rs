@@ -254,6 +254,8 @@ pub fn run(
             env_steps: c.env_steps,
             replay_size: core.replay().len(),
             wall_s: (wall0 + start.elapsed()).as_secs_f64(),
+            actor: None,
+            actor_episode: None,
         };
         runlog::append(&mut metrics, &line).map_err(io("cannot append to metrics.jsonl"))?;
         progress.rl_episode(&line, eps_per_s);
