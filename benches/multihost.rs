@@ -21,7 +21,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
-use mh::{adapt_deploy_config, table, Hosts, Observer, Procs};
+use mh::{Hosts, Observer, Procs};
 use multihost_support as mh;
 
 const WARM_EPISODES: f64 = 30.0;
@@ -115,37 +115,11 @@ fn strings(a: &[&str]) -> Vec<String> {
     a.iter().map(|s| s.to_string()).collect()
 }
 
-/// A deploy config with the run, endpoint and schedule of this benchmark; `deploy` is a file of
-/// `deploy/` or `actor-<k>` (actor k's own file, made as `deploy/README.md` makes it).
+/// A deploy config with the run and endpoint of this benchmark and learner updates off
+/// (`batches_per_episode = 0`: the actors and the transport set the pace); `deploy` is a file of
+/// `deploy/` or `actor-<k>`.
 fn config(dir: &Path, deploy: &str, out: &str, run_id: &str, endpoint: &str) -> PathBuf {
-    let run_dir = dir.join(format!("run-{run_id}"));
-    let edit = |t: &mut toml::Table| {
-        let r = table(t, &["run"]);
-        r.insert("id".into(), run_id.into());
-        r.insert("method".into(), "sarl".into());
-        r.insert("setting".into(), "env1-invisible".into());
-        let z = table(t, &["transport", "zenoh"]);
-        z.insert("connect".into(), toml::Value::Array(vec![endpoint.into()]));
-        let i = table(t, &["train", "imitation"]);
-        i.insert("episodes".into(), 5.into());
-        i.insert("epochs".into(), 1.into());
-        let rl = table(t, &["train", "rl"]);
-        rl.insert("episodes".into(), 1_000_000.into());
-        rl.insert("batches_per_episode".into(), 0.into());
-        if t.contains_key("learner") {
-            let l = table(t, &["learner"]);
-            l.insert(
-                "run_dir".into(),
-                run_dir.to_string_lossy().into_owned().into(),
-            );
-            l.insert("in_flight_per_actor".into(), 8.into());
-            l.insert("metrics_interval_ms".into(), 250.into());
-        }
-    };
-    match deploy.strip_prefix("actor-") {
-        Some(k) => mh::adapt_actor_config(k.parse().expect("an actor id"), dir, out, edit),
-        None => adapt_deploy_config(deploy, dir, out, edit),
-    }
+    mh::budget::run_config(dir, deploy, out, run_id, endpoint, 0, None)
 }
 
 fn episodes_per_s(hosts: &Hosts, dir: &Path, across: bool) -> f64 {

@@ -119,6 +119,17 @@ pub struct Output {
     pub stop: Option<StopReason>,
 }
 
+impl Output {
+    /// A zero command for `reason`.
+    pub fn stop(reason: StopReason) -> Output {
+        Output {
+            command: Command::STOP,
+            decision: None,
+            stop: Some(reason),
+        }
+    }
+}
+
 /// What happened to one input.
 #[derive(Debug, Clone, PartialEq)]
 pub enum Intake {
@@ -333,18 +344,13 @@ impl Controller {
     }
 
     fn decide(&mut self, policy: &mut ServedPolicy, now: Instant) -> Output {
-        let stop = |reason| Output {
-            command: Command::STOP,
-            decision: None,
-            stop: Some(reason),
-        };
         let mut obs = match self.observation(now) {
             Ok(o) => o,
-            Err(reason) => return stop(reason),
+            Err(reason) => return Output::stop(reason),
         };
         let distance_m = (obs.goal - obs.robot.position).norm();
         if distance_m < policy.sim_config().robot.radius_m {
-            return stop(StopReason::GoalReached { distance_m });
+            return Output::stop(StopReason::GoalReached { distance_m });
         }
         obs.steps = self.steps(policy.period_s());
         match policy.decide(&obs) {
@@ -353,7 +359,7 @@ impl Controller {
                 decision: Some(d),
                 stop: None,
             },
-            Err(e) => stop(StopReason::PolicyFailed(e.to_string())),
+            Err(e) => Output::stop(StopReason::PolicyFailed(e.to_string())),
         }
     }
 
@@ -421,14 +427,7 @@ mod tests {
     }
 
     fn people(frame: &str, t_s: f64) -> Vec<u8> {
-        let p = PersonObs {
-            position: Vec2::new(2.0, 0.0),
-            velocity: Vec2::new(-0.5, 0.0),
-            radius_m: None,
-            goal: None,
-            v_pref_mps: None,
-            standing: None,
-        };
+        let p = PersonObs::tracked(Vec2::new(2.0, 0.0), Vec2::new(-0.5, 0.0));
         encode(&People {
             header: header(frame, t_s),
             people: vec![person_with_tags("a".into(), &p)],

@@ -461,11 +461,7 @@ pub fn run(
                                 StopReason::NoOdometry | StopReason::NoGoal | StopReason::NoPeople
                             ) =>
                         {
-                            Some(Output {
-                                command: Command::STOP,
-                                decision: None,
-                                stop: Some(reason),
-                            })
+                            Some(Output::stop(reason))
                         }
                         _ => None,
                     },
@@ -480,11 +476,7 @@ pub fn run(
                 }
                 Intake::Refused(r) => {
                     tracing::error!("{r}");
-                    let out = Output {
-                        command: Command::STOP,
-                        decision: None,
-                        stop: Some(r),
-                    };
+                    let out = Output::stop(r);
                     publish(&mut cmd, &out, &mut last_log);
                 }
                 Intake::Accepted => {
@@ -511,11 +503,7 @@ pub fn run(
                 }
                 Intake::Refused(r) => {
                     tracing::error!("{r}");
-                    let out = Output {
-                        command: Command::STOP,
-                        decision: None,
-                        stop: Some(r),
-                    };
+                    let out = Output::stop(r);
                     publish(&mut cmd, &out, &mut last_log);
                 }
                 Intake::Accepted => {}
@@ -532,11 +520,7 @@ pub fn run(
                 }
             }
             Some(Event::Shutdown) => {
-                let out = Output {
-                    command: Command::STOP,
-                    decision: None,
-                    stop: Some(StopReason::Shutdown),
-                };
+                let out = Output::stop(StopReason::Shutdown);
                 publish(&mut cmd, &out, &mut last_log);
                 break;
             }

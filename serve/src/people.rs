@@ -50,6 +50,18 @@ pub struct PersonObs {
 }
 
 impl PersonObs {
+    /// A person as a tracker reports it: position and velocity, nothing else known.
+    pub fn tracked(position: Vec2, velocity: Vec2) -> PersonObs {
+        PersonObs {
+            position,
+            velocity,
+            radius_m: None,
+            goal: None,
+            v_pref_mps: None,
+            standing: None,
+        }
+    }
+
     /// A simulated human as a tracker that knows everything would report it.
     pub fn of_human(h: &sim::HumanState) -> PersonObs {
         PersonObs {
@@ -97,14 +109,7 @@ pub enum PeopleError {
 }
 
 fn person_from_tags(i: usize, p: &Person) -> Result<PersonObs, PeopleError> {
-    let mut out = PersonObs {
-        position: xy(&p.position),
-        velocity: xy(&p.velocity),
-        radius_m: None,
-        goal: None,
-        v_pref_mps: None,
-        standing: None,
-    };
+    let mut out = PersonObs::tracked(xy(&p.position), xy(&p.velocity));
     let num = |v: &str, what: &str| -> Result<f64, PeopleError> {
         v.parse::<f64>()
             .ok()
@@ -186,14 +191,7 @@ pub fn decode(format: PeopleFormat, bytes: &[u8]) -> Result<PeopleObs, PeopleErr
             let people = m
                 .tracks
                 .iter()
-                .map(|t| PersonObs {
-                    position: xy(&t.pose.pose.position),
-                    velocity: xy(&t.twist.twist.linear),
-                    radius_m: None,
-                    goal: None,
-                    v_pref_mps: None,
-                    standing: None,
-                })
+                .map(|t| PersonObs::tracked(xy(&t.pose.pose.position), xy(&t.twist.twist.linear)))
                 .collect();
             (m.header, people)
         }
@@ -202,14 +200,7 @@ pub fn decode(format: PeopleFormat, bytes: &[u8]) -> Result<PeopleObs, PeopleErr
             let people = m
                 .agent_states
                 .iter()
-                .map(|a| PersonObs {
-                    position: xy(&a.pose.position),
-                    velocity: xy(&a.twist.linear),
-                    radius_m: None,
-                    goal: None,
-                    v_pref_mps: None,
-                    standing: None,
-                })
+                .map(|a| PersonObs::tracked(xy(&a.pose.position), xy(&a.twist.linear)))
                 .collect();
             (m.header, people)
         }
@@ -276,13 +267,7 @@ mod tests {
             },
             ..Twist::default()
         };
-        let bare = PersonObs {
-            radius_m: None,
-            goal: None,
-            v_pref_mps: None,
-            standing: None,
-            ..obs
-        };
+        let bare = PersonObs::tracked(obs.position, obs.velocity);
         let spencer = TrackedPersons {
             header: header.clone(),
             tracks: vec![TrackedPerson {

@@ -130,14 +130,18 @@ fn fsrl() -> &'static Path {
     Path::new(env!("CARGO_BIN_EXE_fsrl"))
 }
 
-/// A deploy config for this run; `deploy` is a file of `deploy/` or `actor-<k>`.
-fn config(
+/// A deploy config for a run of the emulated cluster (SARL on env1-invisible, a short warm
+/// start, RL without end, `batches_per_episode` updates per episode, the learner's update
+/// `threads` when given, else its default); `deploy` is a file of `deploy/` or `actor-<k>`
+/// (actor k's own file, made as `deploy/README.md` makes it). The benchmarks share it.
+pub fn run_config(
     dir: &Path,
-    spec: &Spec,
     deploy: &str,
     out: &str,
     run_id: &str,
     endpoint: &str,
+    batches_per_episode: u32,
+    threads: Option<u32>,
 ) -> PathBuf {
     let run_dir = dir.join(format!("run-{run_id}"));
     let edit = |t: &mut toml::Table| {
@@ -154,7 +158,7 @@ fn config(
         rl.insert("episodes".into(), 1_000_000.into());
         rl.insert(
             "batches_per_episode".into(),
-            i64::from(spec.batches_per_episode).into(),
+            i64::from(batches_per_episode).into(),
         );
         if t.contains_key("learner") {
             let l = table(t, &["learner"]);
@@ -164,13 +168,35 @@ fn config(
             );
             l.insert("in_flight_per_actor".into(), 8.into());
             l.insert("metrics_interval_ms".into(), 250.into());
-            l.insert("threads".into(), i64::from(spec.learner_threads).into());
+            if let Some(n) = threads {
+                l.insert("threads".into(), i64::from(n).into());
+            }
         }
     };
     match deploy.strip_prefix("actor-") {
         Some(k) => adapt_actor_config(k.parse().expect("an actor id"), dir, out, edit),
         None => adapt_deploy_config(deploy, dir, out, edit),
     }
+}
+
+/// [`run_config`] with this spec's schedule and learner threads.
+fn config(
+    dir: &Path,
+    spec: &Spec,
+    deploy: &str,
+    out: &str,
+    run_id: &str,
+    endpoint: &str,
+) -> PathBuf {
+    run_config(
+        dir,
+        deploy,
+        out,
+        run_id,
+        endpoint,
+        spec.batches_per_episode,
+        Some(spec.learner_threads),
+    )
 }
 
 /// Bytes received and sent by the hub's interface `dev`, from the hub's `/proc/net/dev`.
