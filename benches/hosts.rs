@@ -7,7 +7,10 @@
 //!
 //! - learner updates off (`batches_per_episode = 0`): what the actor hosts deliver;
 //! - the fast schedule's fixed 20 batches per episode: what a run gets, and where the learner's
-//!   ceiling is. (The adaptive replay-ratio mode of issue 34 item 2 is not built yet.)
+//!   ceiling is;
+//! - the adaptive mode (`replay_ratio = { min = 2, max = 20 }`, rounds of 20 updates): the
+//!   learner trains flat out and more actor hosts lower the updates per episode, so episodes/s
+//!   grow with N until the learner's ceiling at 2 updates per episode.
 //!
 //! Per cluster: episodes/s, updates/s, realised updates per episode (replay ratio), the
 //! learner's policy lag (mean, p95), bytes/s into and out of the router (the hub's ends of the
@@ -49,8 +52,17 @@ fn main() {
         "emulated hosts: learner {LEARNER_CORES} core (1 update thread), actor hosts {ACTOR_CORES} core each, hub (router + observer) {HUB_CORES} core; cgroup {:?}",
         mh::cgroup::flavour().unwrap()
     );
-    let mut results: Vec<(u32, Vec<Measured>)> = Vec::new();
-    for (batches, measure) in [(0u32, 20u64), (20, 30)] {
+    let mut results: Vec<(Schedule, Vec<Measured>)> = Vec::new();
+    for (schedule, measure) in [
+        (Schedule::Off, 20u64),
+        (Schedule::Fixed, 30),
+        (Schedule::Adaptive, 30),
+    ] {
+        let (batches, replay_ratio) = match schedule {
+            Schedule::Off => (0, None),
+            Schedule::Fixed => (20, None),
+            Schedule::Adaptive => (20, Some(ADAPTIVE)),
+        };
         let mut row = Vec::new();
         for n in [1usize, 2, 4] {
             let spec = Spec {
@@ -60,12 +72,13 @@ fn main() {
                 learner_threads: 1,
                 hub_cores: HUB_CORES,
                 batches_per_episode: batches,
+                replay_ratio,
                 warm_episodes: 10.0,
                 measure: Duration::from_secs(measure),
                 patience: Duration::from_secs(120),
                 log: "warn".into(),
             };
-            let run_id = format!("hosts-b{batches}-n{n}-{}", std::process::id());
+            let run_id = format!("hosts-{}-n{n}-{}", schedule.tag(), std::process::id());
             let m = budget::run(&hosts, &actor_hosts, dir.path(), &run_id, &spec, &[])
                 .unwrap_or_else(|e| panic!("{run_id}: {e}"));
             eprintln!(
@@ -74,20 +87,47 @@ fn main() {
             );
             row.push(m);
         }
-        results.push((batches, row));
+        results.push((schedule, row));
     }
-    for (batches, row) in &results {
-        print_table(*batches, row);
+    for (schedule, row) in &results {
+        print_table(*schedule, row);
     }
     cost_model(&results);
     drop(hosts);
 }
 
-fn print_table(batches: u32, row: &[Measured]) {
-    let what = if batches == 0 {
-        "learner updates off".to_string()
-    } else {
-        format!("fixed {batches} batches per episode")
+/// The learner's schedule of one set of clusters.
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum Schedule {
+    /// `batches_per_episode = 0`.
+    Off,
+    /// 20 batches per episode.
+    Fixed,
+    /// `replay_ratio` = [`ADAPTIVE`].
+    Adaptive,
+}
+
+impl Schedule {
+    fn tag(self) -> &'static str {
+        match self {
+            Schedule::Off => "off",
+            Schedule::Fixed => "b20",
+            Schedule::Adaptive => "adaptive",
+        }
+    }
+}
+
+/// The adaptive mode's bounds, updates per episode (docs/REPRODUCTION.md, Experiment 17).
+const ADAPTIVE: (f64, f64) = (2.0, 20.0);
+
+fn print_table(schedule: Schedule, row: &[Measured]) {
+    let what = match schedule {
+        Schedule::Off => "learner updates off".to_string(),
+        Schedule::Fixed => "fixed 20 batches per episode".to_string(),
+        Schedule::Adaptive => format!(
+            "adaptive replay ratio, {} to {} updates per episode",
+            ADAPTIVE.0, ADAPTIVE.1
+        ),
     };
     println!(
         "\n{what} ({} s measured per N):",
@@ -147,7 +187,7 @@ fn range(v: &[f64]) -> String {
 /// (one update thread) doing B updates of u CPU seconds per episode. s and w are fitted to the
 /// updates-off runs with N = 1 and 4, u is the learner's CPU per update in the learner-bound
 /// run (B = 20, N = 4); everything else is a prediction.
-fn cost_model(results: &[(u32, Vec<Measured>)]) {
+fn cost_model(results: &[(Schedule, Vec<Measured>)]) {
     let off = &results[0].1;
     let (a1, l1) = (off[0].actor_cpu_s_per_episode, off[0].steps_per_episode);
     let (a4, l4) = (off[2].actor_cpu_s_per_episode, off[2].steps_per_episode);
@@ -161,24 +201,52 @@ fn cost_model(results: &[(u32, Vec<Measured>)]) {
         u * 1e3,
         UPDATE_1T_S * 1e3
     );
-    for (batches, row) in results {
+    for (schedule, row) in results {
         for m in row {
             let n = m.spec.actors as f64;
-            let actors = n * m.spec.actor_cores / (s * m.steps_per_episode + w * n);
-            let learner = |u: f64| {
-                if *batches == 0 {
-                    f64::INFINITY
-                } else {
-                    m.spec.learner_cores.min(1.0) / (*batches as f64 * u)
+            let learner_cores = m.spec.learner_cores.min(1.0);
+            let (actors, learner, stated) = match schedule {
+                // Weights after every episode: each actor receives N messages per episode.
+                Schedule::Off | Schedule::Fixed => {
+                    let batches = if *schedule == Schedule::Off {
+                        0.0
+                    } else {
+                        20.0
+                    };
+                    let actors = n * m.spec.actor_cores / (s * m.steps_per_episode + w * n);
+                    let learner = |u: f64| {
+                        if batches == 0.0 {
+                            f64::INFINITY
+                        } else {
+                            learner_cores / (batches * u)
+                        }
+                    };
+                    (
+                        actors,
+                        learner(u),
+                        actors.min(learner(UPDATE_1T_S + INTAKE_S / batches.max(1.0))),
+                    )
+                }
+                // Weights after every round of 20 updates (a rate the learner sets, whatever
+                // N); the learner takes episodes as long as it has done `min` updates for each.
+                Schedule::Adaptive => {
+                    let rounds_per_s = m.updates_per_s / 20.0;
+                    let actors =
+                        n * (m.spec.actor_cores - w * rounds_per_s) / (s * m.steps_per_episode);
+                    let learner = learner_cores / (ADAPTIVE.0 * u);
+                    (
+                        actors,
+                        learner,
+                        actors.min(learner_cores / (ADAPTIVE.0 * UPDATE_1T_S + INTAKE_S)),
+                    )
                 }
             };
-            let predicted = actors.min(learner(u));
-            let stated = actors.min(learner(UPDATE_1T_S + INTAKE_S / *batches.max(&1) as f64));
+            let predicted = actors.min(learner);
             println!(
-                "  B={batches:>2} N={}: L = {:.0} steps; predicted min(actors {actors:.2}, learner {:.2}) = {predicted:.2} episodes/s, measured {:.2} ({:+.0} %); with the stated update cost {stated:.2} ({:+.0} %); learner CPU per update {:.2} ms, actor CPU per episode {:.1} ms",
+                "  {:>8} N={}: L = {:.0} steps; predicted min(actors {actors:.2}, learner {learner:.2}) = {predicted:.2} episodes/s, measured {:.2} ({:+.0} %); with the stated update cost {stated:.2} ({:+.0} %); learner CPU per update {:.2} ms, actor CPU per episode {:.1} ms",
+                schedule.tag(),
                 m.spec.actors,
                 m.steps_per_episode,
-                learner(u),
                 m.episodes_per_s,
                 100.0 * (m.episodes_per_s / predicted - 1.0),
                 100.0 * (m.episodes_per_s / stated - 1.0),

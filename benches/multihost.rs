@@ -119,7 +119,7 @@ fn strings(a: &[&str]) -> Vec<String> {
 /// (`batches_per_episode = 0`: the actors and the transport set the pace); `deploy` is a file of
 /// `deploy/` or `actor-<k>`.
 fn config(dir: &Path, deploy: &str, out: &str, run_id: &str, endpoint: &str) -> PathBuf {
-    mh::budget::run_config(dir, deploy, out, run_id, endpoint, 0, None)
+    mh::budget::run_config(dir, deploy, out, run_id, endpoint, 0, None, None)
 }
 
 fn episodes_per_s(hosts: &Hosts, dir: &Path, across: bool) -> f64 {

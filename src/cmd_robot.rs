@@ -16,7 +16,7 @@ pub struct AsRobotArgs {
     #[arg(long)]
     pub as_robot: bool,
     /// With --as-robot: play this model's world (its simulator config, as `fsrl eval`) and count
-    /// the steps where a command is not its in-process decision.
+    /// the steps where a command is not its in-process decision on what the messages convey.
     #[arg(long)]
     pub model: Option<PathBuf>,
     /// With --as-robot: ask the queryable fsrl/serve/NAME/act instead of using topics.
@@ -48,6 +48,7 @@ pub fn as_robot(
         None => serve::standin::Link::Topics {
             style: a.ros.style(),
             topics: a.ros.topics(),
+            people: a.ros.people_format,
         },
     };
     let opts = serve::standin::RobotOptions {

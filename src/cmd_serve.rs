@@ -32,6 +32,9 @@ pub struct RosArgs {
     pub people_topic: String,
     #[arg(long, default_value = "cmd_vel")]
     pub cmd_vel_topic: String,
+    /// People message: people (people_msgs/People), spencer (TrackedPersons), pedsim (AgentStates).
+    #[arg(long, default_value = "people")]
+    pub people_format: PeopleFormat,
     /// zenoh endpoints to listen on.
     #[arg(long, default_value = "tcp/127.0.0.1:0")]
     pub listen: Vec<String>,
@@ -79,9 +82,6 @@ pub struct ServeArgs {
     /// Names the queryable fsrl/serve/NAME/act and the ROS 2 node.
     #[arg(long, default_value = "fsrl")]
     pub name: String,
-    /// People message: people (people_msgs/People), spencer (TrackedPersons), pedsim (AgentStates).
-    #[arg(long, default_value = "people")]
-    pub people_format: PeopleFormat,
     /// Decide every period (`timer`) or on each odometry once people of its stamp are in
     /// (`odometry`: a simulator in lockstep).
     #[arg(long, default_value = "timer", value_parser = ["timer", "odometry"])]
@@ -115,7 +115,7 @@ pub fn run(a: ServeArgs) -> anyhow::Result<()> {
         zenoh: a.ros.zenoh(),
         model: a.model,
         name: a.name,
-        people_format: a.people_format,
+        people_format: a.ros.people_format,
         trigger: if a.trigger == "odometry" {
             Trigger::Odometry
         } else {
@@ -137,6 +137,7 @@ pub fn run(a: ServeArgs) -> anyhow::Result<()> {
         }
     })
     .context("installing the Ctrl-C/SIGTERM handler")?;
-    serve::run(&opts, (tx, rx))?;
+    // The line tests and scripts wait for: everything is declared, commands flow from now on.
+    serve::run(&opts, (tx, rx), || println!("ready"))?;
     Ok(())
 }

@@ -261,6 +261,10 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
         .context("cannot install the Ctrl-C handler")?;
     }
     let resolved = resolve(&args)?;
+    if resolved.file.train.rl.replay_ratio.is_some() {
+        // Before anything is written: the lockstep schedule has one round per episode.
+        return Err(trainer::TrainerError::AdaptiveNeedsProcesses.into());
+    }
     let out = args
         .out
         .clone()

@@ -2,6 +2,7 @@
 //! over iceoryx2. Readiness comes from liveliness and live metrics (a monitor transport in the
 //! test), never from sleeping.
 
+mod hostile_support;
 mod shm_support;
 
 use std::collections::BTreeMap;
@@ -10,6 +11,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
+use hostile_support::{forge, honest_batch};
 use proto::{keys, Metrics, Role, RunId, SenderId};
 use shm_support::ShmSnapshot;
 use transport::{DataPlane, Subscriber, Transport, TransportConfig, ZenohConfig};
@@ -185,7 +187,8 @@ fn wait_exit(c: &mut Child, what: &str, run: &Run) -> std::process::ExitStatus {
     }
 }
 
-fn two_process_run(plane: &'static str) {
+/// Returns the run's id.
+fn two_process_run(plane: &'static str) -> String {
     let run = Run::new("two", plane, "");
     let mut procs = Procs(vec![run.spawn("learner", &["--rl-episodes", "4"])]);
     // Watch the weights before the actor starts: its four RL episodes at 20 updates each take
@@ -229,6 +232,7 @@ fn two_process_run(plane: &'static str) {
     assert_eq!(loaded.core.counters().rl_episodes, 4);
     assert_eq!(loaded.run.accepted_below.get(&0).copied(), Some(4));
     println!("{plane}: weight versions seen {versions:?}");
+    run.id.clone()
 }
 
 #[test]
@@ -239,8 +243,9 @@ fn learner_and_actor_train_over_zenoh() {
 #[test]
 fn learner_and_actor_train_over_iceoryx2_and_clean_up_shared_memory() {
     let before = ShmSnapshot::take();
-    two_process_run("iceoryx2");
-    let leaked = before.new_since(|e| e.contains("fsrl"));
+    let id = two_process_run("iceoryx2");
+    // This run's segments only: other tests of this binary run their own at the same time.
+    let leaked = before.new_since(|e| e.contains(&format!("fsrl_{id}_")));
     assert!(leaked.is_empty(), "shared memory left behind: {leaked:?}");
 }
 
@@ -559,7 +564,9 @@ fn one_command_local_training_runs_every_process_and_leaves_a_run_directory() {
         .map(|k| last[k].as_f64().unwrap())
         .sum();
     assert!((rates - 1.0).abs() < 1e-9, "{last}");
-    let leaked = before.new_since(|e| e.contains("fsrl"));
+    // This run's segments only (its run id is the run directory's name): other tests of this
+    // binary run their own at the same time.
+    let leaked = before.new_since(|e| e.contains("fsrl_local-run_"));
     assert!(leaked.is_empty(), "shared memory left behind: {leaked:?}");
     // The same command again refuses to overwrite the run.
     let o = Command::new(env!("CARGO_BIN_EXE_fsrl"))
@@ -578,42 +585,13 @@ fn one_command_local_training_runs_every_process_and_leaves_a_run_directory() {
     assert!(String::from_utf8_lossy(&o.stderr).contains("--resume"));
 }
 
-/// An honest episode of the test runs' setting (env2-visible) as actor `episode`'s batch.
-fn honest_batch(episode: u64, seed: u64) -> proto::TransitionBatch {
-    let cfg = sim::SimConfig::default();
-    let mut env = sim::Env::new(cfg, "env2-visible".parse().unwrap(), 0).unwrap();
-    let ep = policy::rollout::rollout(
-        &mut env,
-        seed,
-        policy::rollout::Behaviour::Orca {
-            safety_space_m: 0.0,
-        },
-    )
-    .unwrap();
-    policy::wire::to_batch(&ep, episode, env.action_set().len() as u16).unwrap()
-}
-
-/// Publishes `batch` on `key_actor`'s transitions key with a header naming `claimed`.
-fn forge(
-    t: &Transport,
-    publishers: &mut BTreeMap<u32, transport::Publisher<proto::TransitionBatch>>,
-    key_actor: u32,
-    claimed: SenderId,
-    batch: &proto::TransitionBatch,
-) {
-    let p = publishers
-        .entry(key_actor)
-        .or_insert_with(|| t.publisher(&keys::transitions(t.run(), key_actor)).unwrap());
-    let header = proto::Header::new::<proto::TransitionBatch>(t.run().clone(), claimed, 0, 1);
-    p.publish_raw(proto::encode(&header, batch).unwrap())
-        .unwrap();
-}
-
-/// Hostile but well-formed input from an authenticated client (issue 16, items 1–3 and 5): an
-/// episode sent during imitation, another actor's id with a huge episode index, a reward of
-/// 1e30, a position of 3e38, a header that contradicts its key, and 4097 fresh actor ids. The
-/// learner stays up and counts each, the honest actor keeps progressing, and nothing poisoned
-/// reaches the checkpoint.
+/// Hostile but well-formed input from a client on the learner's own endpoint, no router in
+/// between (a local run; issue 16, items 1–3 and 5): an episode sent during imitation, another
+/// actor's id with a huge episode index, a reward of 1e30, a position of 3e38, a header that
+/// contradicts its key, and 4097 fresh actor ids on their own keys. The learner stays up and
+/// counts each, the honest actor keeps progressing, and nothing poisoned reaches the
+/// checkpoint. The same attacks with an actor's credentials through the live router, where
+/// the router keeps other actors' keys out: `tests/hostile_batches.rs`.
 #[test]
 fn hostile_but_well_formed_episodes_neither_stop_nor_poison_the_learner() {
     let run = Run::new(
@@ -737,4 +715,65 @@ fn two_actors_share_the_learner_fairly_over_iceoryx2() {
         a0.min(a1) >= 10,
         "one actor was starved: actor 0 {a0}, actor 1 {a1} of 40 episodes"
     );
+}
+
+/// The adaptive mode (`train.rl.replay_ratio`), as processes: the learner trains in rounds not
+/// tied to episodes, and the realised updates per accepted episode stay within the bounds,
+/// whatever the speed of actors and learner (which of the two bounds a run sits at depends on
+/// them): equal bounds hold it exactly, and a `min` above `batches_per_episode` makes the
+/// learner train between episodes (with the fixed schedule it would do 2 per episode).
+#[test]
+fn the_adaptive_mode_keeps_its_replay_ratio_within_bounds() {
+    let dir = tempfile::tempdir().unwrap();
+    let ratio = |name: &str, min: f64, max: f64| {
+        let out = dir.path().join(name);
+        let config = dir.path().join(format!("{name}.toml"));
+        std::fs::write(
+            &config,
+            format!(
+                "[train.imitation]\nepisodes = 6\nepochs = 1\n[train.rl]\nepisodes = 40\n\
+                 batches_per_episode = 2\nreplay_ratio = {{ min = {min}, max = {max} }}\n"
+            ),
+        )
+        .unwrap();
+        let o = Command::new(env!("CARGO_BIN_EXE_fsrl"))
+            .args(["train", "--method", "sarl", "--setting", "env1-invisible"])
+            .args(["--actors", "2", "--transport", "iceoryx2", "--no-evaluator"])
+            .args(["--eval-episodes", "2", "--config"])
+            .arg(&config)
+            .arg("--out")
+            .arg(&out)
+            .output()
+            .unwrap();
+        let stderr = String::from_utf8_lossy(&o.stderr);
+        assert!(o.status.success(), "{stderr}");
+        let loaded = learner::checkpoint::load(&out.join("checkpoints/latest.ckpt")).unwrap();
+        assert_eq!(loaded.core.counters().rl_episodes, 40);
+        let run: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(out.join("run.json")).unwrap()).unwrap();
+        let realised = run["learner_updates_per_episode"].as_f64().unwrap();
+        assert!(
+            realised >= min - 1e-9 && realised <= max + 1.0 / 40.0,
+            "{name}: {realised} updates per episode, bounds [{min}, {max}]"
+        );
+        realised
+    };
+    let tight = ratio("tight", 3.0, 3.0);
+    assert!((tight - 3.0).abs() < 1e-9, "{tight}");
+    ratio("wide", 5.0, 400.0);
+
+    // The lockstep mode has no adaptive schedule: refused before anything is written.
+    let config = dir.path().join("tight.toml");
+    let out = dir.path().join("single");
+    let o = Command::new(env!("CARGO_BIN_EXE_fsrl"))
+        .args(["train", "--single-process", "--config"])
+        .arg(&config)
+        .arg("--out")
+        .arg(&out)
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success());
+    assert!(stderr.contains("needs a distributed run"), "{stderr}");
+    assert!(!out.exists());
 }

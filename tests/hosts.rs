@@ -59,6 +59,7 @@ fn two_actor_hosts_deliver_more_episodes_than_one_under_the_same_quota() {
             learner_threads: 1,
             hub_cores: 0.5,
             batches_per_episode: 0,
+            replay_ratio: None,
             warm_episodes: 10.0,
             measure: Duration::from_secs(20),
             patience: Duration::from_secs(90),

@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
 # The tests: the one command to run them, here and in CI (.ci/run calls it). On a machine with
 # only the Rust toolchain it first provides what the tests need besides cargo:
-#   - Python with `msgpack`, `eclipse-zenoh` and `rosbags` (proto/tests/proto/python.rs,
-#     serve/tests/rosbags.rs, tests/distributed.rs
+#   - Python with `msgpack`, `eclipse-zenoh`, `rosbags` and `xxhash` (proto/tests/proto/python.rs,
+#     serve/tests/interop.rs, tests/distributed.rs
 #     and tests/multihost.rs run `python3` from PATH): a project-local virtual environment .venv/,
 #     created and filled when needed, put first on PATH;
 #   - a TrueType font for the pictures (viz/src/fonts.rs): installed when missing and running as
@@ -17,6 +17,7 @@ root=$PWD
 
 zenoh_version=1.10.2
 rosbags_version=0.11.9
+xxhash_version=3.5.0
 venv="$root/.venv"
 
 say() { echo "tools/test.sh: $*" >&2; }
@@ -32,7 +33,7 @@ apt_install() {
   apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq "$@" >/dev/null
 }
 
-# --- Python: .venv/ with msgpack and eclipse-zenoh ------------------------------------------
+# --- Python: .venv/ with msgpack, eclipse-zenoh, rosbags and xxhash ----------------------------
 venv_works() { "$venv/bin/python3" -m pip --version >/dev/null 2>&1; }
 if ! venv_works; then
   if ! command -v python3 >/dev/null; then
@@ -48,19 +49,21 @@ if ! venv_works; then
   fi
 fi
 have_modules() {
-  "$venv/bin/python3" - "$zenoh_version" "$rosbags_version" >/dev/null 2>&1 <<'EOF'
+  "$venv/bin/python3" - "$zenoh_version" "$rosbags_version" "$xxhash_version" >/dev/null 2>&1 <<'EOF'
 import sys
 from importlib.metadata import version
-import msgpack, zenoh, rosbags
-sys.exit(version("eclipse-zenoh") != sys.argv[1] or version("rosbags") != sys.argv[2])
+import msgpack, zenoh, rosbags, xxhash
+sys.exit(version("eclipse-zenoh") != sys.argv[1] or version("rosbags") != sys.argv[2]
+         or version("xxhash") != sys.argv[3])
 EOF
 }
 if ! have_modules; then
-  say "installing msgpack, eclipse-zenoh==$zenoh_version and rosbags==$rosbags_version into .venv/ (pip)"
+  wanted="msgpack, eclipse-zenoh==$zenoh_version, rosbags==$rosbags_version and xxhash==$xxhash_version"
+  say "installing $wanted into .venv/ (pip)"
   "$venv/bin/python3" -m pip install --quiet --disable-pip-version-check \
-    msgpack "eclipse-zenoh==$zenoh_version" "rosbags==$rosbags_version" ||
-    die "pip could not install msgpack, eclipse-zenoh==$zenoh_version and rosbags==$rosbags_version into .venv/ (network?)"
-  have_modules || die "msgpack, eclipse-zenoh==$zenoh_version or rosbags==$rosbags_version still not importable from .venv/"
+    msgpack "eclipse-zenoh==$zenoh_version" "rosbags==$rosbags_version" "xxhash==$xxhash_version" ||
+    die "pip could not install $wanted into .venv/ (network?)"
+  have_modules || die "$wanted: still not all importable from .venv/"
 fi
 export VIRTUAL_ENV="$venv"
 export PATH="$venv/bin:$PATH"

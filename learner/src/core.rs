@@ -527,11 +527,52 @@ impl LearnerCore {
     }
 
     /// `batches` V-learning updates on uniform samples from replay; returns the mean loss.
-    /// Bumps the policy version and refreshes the target network on schedule.
+    /// Bumps the policy version and refreshes the target network on schedule (every
+    /// `target_update_episodes` RL episodes: the fixed schedule, one call per accepted episode).
     pub fn train_rl(&mut self, batches: u32) -> Result<f32, LearnerError> {
         if !self.counters.imitation_done {
             return Err(LearnerError::Phase("train_rl before start_rl"));
         }
+        let loss = self.fit_batches(batches)?;
+        self.counters.policy_version += 1;
+        if self
+            .counters
+            .rl_episodes
+            .is_multiple_of(self.train.rl.target_update_episodes)
+        {
+            self.trainer.sync_target();
+            self.targets_stale = true;
+        }
+        Ok(loss)
+    }
+
+    /// The adaptive mode's round of updates (`train.rl.replay_ratio`): `batches` updates, not
+    /// tied to an episode. Bumps the policy version; the target network is refreshed whenever
+    /// the update count passes a multiple of `target_update_episodes × batches_per_episode`,
+    /// the fixed schedule's updates between refreshes.
+    pub fn train_round(&mut self, batches: u32) -> Result<f32, LearnerError> {
+        if !self.counters.imitation_done {
+            return Err(LearnerError::Phase("train_round before start_rl"));
+        }
+        let period = self
+            .train
+            .rl
+            .target_update_episodes
+            .saturating_mul(self.train.rl.batches_per_episode as u64)
+            .max(1);
+        let before = self.counters.updates / period;
+        let loss = self.fit_batches(batches)?;
+        self.counters.policy_version += 1;
+        if self.counters.updates / period > before {
+            self.trainer.sync_target();
+            self.targets_stale = true;
+        }
+        Ok(loss)
+    }
+
+    /// `batches` updates on uniform samples from replay (targets refreshed first when stale);
+    /// the mean loss, NaN when none was taken.
+    fn fit_batches(&mut self, batches: u32) -> Result<f32, LearnerError> {
         let mut batches = batches;
         if batches > 0 && self.targets_stale {
             match self.refresh_targets(0..self.replay.len()) {
@@ -566,15 +607,6 @@ impl LearnerCore {
                 sum += loss as f64;
                 n += 1;
             }
-        }
-        self.counters.policy_version += 1;
-        if self
-            .counters
-            .rl_episodes
-            .is_multiple_of(self.train.rl.target_update_episodes)
-        {
-            self.trainer.sync_target();
-            self.targets_stale = true;
         }
         Ok(if n == 0 {
             f32::NAN
@@ -652,5 +684,44 @@ mod tests {
         assert_eq!(core.fit_or_skip(1, false).unwrap(), None);
         assert_eq!(core.skipped_batches(), 1);
         assert_eq!(core.trainer.online().params(), &before[..]);
+    }
+
+    /// The adaptive mode's rounds: each bumps the version once; the target network follows
+    /// the online one exactly when the update count passes a multiple of
+    /// `target_update_episodes × batches_per_episode`, however the rounds are cut.
+    #[test]
+    fn rounds_refresh_the_target_network_every_period_of_updates() {
+        let cfg = sim::SimConfig::default();
+        let mut train = TrainConfig::default();
+        train.rl.target_update_episodes = 2;
+        train.rl.batches_per_episode = 3;
+        let mut core =
+            LearnerCore::new(Method::Sarl, train, cfg.humans.count, cfg.dt_s, 1).unwrap();
+        for seed in 0..3 {
+            core.add_episode(&orca_episode(seed), true).unwrap();
+        }
+        assert!(core.train_round(1).is_err(), "rounds before RL");
+        core.start_rl().unwrap();
+        let same =
+            |core: &LearnerCore| core.trainer.online().params() == core.trainer.target().params();
+        assert!(same(&core));
+        let (u0, v0) = (core.counters().updates, core.counters().policy_version);
+        // Period 6 updates; the imitation's updates (none here) shift where it falls.
+        assert_eq!(u0 % 6, 0);
+        for (batches, refreshed) in [(4, false), (1, false), (2, true), (4, false), (1, true)] {
+            core.train_round(batches).unwrap();
+            assert_eq!(
+                same(&core),
+                refreshed,
+                "after {} updates",
+                core.counters().updates - u0
+            );
+        }
+        assert_eq!(core.counters().updates - u0, 12);
+        assert_eq!(core.counters().policy_version - v0, 5);
+        // Episodes taken in between do not move the target network in this mode.
+        core.add_episode(&orca_episode(9), false).unwrap();
+        core.train_round(1).unwrap();
+        assert!(!same(&core));
     }
 }

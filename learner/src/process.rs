@@ -338,7 +338,9 @@ impl Learner<'_> {
     fn ack(&mut self, actor: u32) {
         let below = self.accepted_below.get(&actor).copied().unwrap_or(0);
         if !self.acks.contains_key(&actor) {
-            match self.t.publisher(&keys::ack(self.t.run(), actor)) {
+            // Dropped, not waited on, for an actor that does not read: each ack supersedes the
+            // last and every live actor gets its ack again on each metrics tick.
+            match self.t.dropping_publisher(&keys::ack(self.t.run(), actor)) {
                 Ok(p) => {
                     self.acks.insert(actor, p);
                 }
@@ -454,9 +456,36 @@ impl Learner<'_> {
         if let Some(last) = self.window.losses.back_mut() {
             *last = self.last_loss;
         }
+        self.log_stored();
+        Ok(())
+    }
+
+    /// The adaptive mode's round of `batches` updates, not tied to an episode.
+    fn train_round(&mut self, batches: u32) -> Result<(), ProcessError> {
+        let trained = Instant::now();
+        let loss = self.core.train_round(batches)?;
+        self.train += trained.elapsed();
+        if loss.is_finite() {
+            self.last_loss = loss;
+        }
+        Ok(())
+    }
+
+    /// RL episodes and updates since this process started RL.
+    fn rl_progress(&self) -> (u64, u64) {
+        let c = self.core.counters();
+        let (_, e0, u0) = self.rl_start;
+        (
+            c.rl_episodes.saturating_sub(e0),
+            c.updates.saturating_sub(u0),
+        )
+    }
+
+    /// Writes the log line of the episode just stored (with the latest loss).
+    fn log_stored(&mut self) {
         let Some((outcome, steps, return_sum, epsilon, actor, actor_episode)) = self.stored.take()
         else {
-            return Ok(());
+            return;
         };
         let c = self.core.counters();
         let line = crate::runlog::RlLine {
@@ -478,7 +507,6 @@ impl Learner<'_> {
             actor_episode: Some(actor_episode),
         };
         self.log_line(&line);
-        Ok(())
     }
 
     /// Appends a line to the run's log; a line that cannot be written (a full disk) is counted
@@ -492,6 +520,49 @@ impl Learner<'_> {
                 format_args!("metrics.jsonl: a line was not written: {e}"),
             );
         }
+    }
+
+    /// Takes one received message: refused unless an actor's; made durable, stored and
+    /// acknowledged if it is the actor's next episode (a duplicate is acknowledged again).
+    fn take(&mut self, msg: proto::Message<TransitionBatch>) -> Accepted {
+        if msg.header.sender.role != Role::Actor {
+            self.rejected_episodes += 1;
+            warn_sometimes(
+                "rejected",
+                self.rejected_episodes,
+                format_args!(
+                    "transitions from a non-actor ({}) ignored",
+                    msg.header.sender
+                ),
+            );
+            return Accepted::Refused;
+        }
+        let actor = msg.header.sender.index;
+        let bytes = match proto::encode_message(&msg) {
+            Ok(b) => b,
+            Err(e) => {
+                self.rejected_episodes += 1;
+                warn_sometimes(
+                    "rejected",
+                    self.rejected_episodes,
+                    format_args!("episode of actor {actor} does not re-encode: {e}"),
+                );
+                return Accepted::Refused;
+            }
+        };
+        let accepted = self.accept_logged(
+            actor,
+            &msg.body,
+            msg.header.policy_version,
+            true,
+            Some(&bytes),
+        );
+        // Acknowledge stored and duplicate episodes; a refused one from an unknown actor gets
+        // nothing (no per-actor state for strangers).
+        if accepted != Accepted::Refused || self.accepted_below.contains_key(&actor) {
+            self.ack(actor);
+        }
+        accepted
     }
 
     /// Accepts one episode (not yet trained on). Returns false for a duplicate or a rejection.
@@ -855,6 +926,7 @@ pub fn run_with_probe(
     let mut checkpoint_due = false;
     let mut pending = VecDeque::new();
     let mut published_since_tick = true;
+    let ratio = spec.train.rl.replay_ratio;
 
     while l.phase() == RunPhase::Training {
         if stop.load(Ordering::SeqCst) {
@@ -887,12 +959,23 @@ pub fn run_with_probe(
                 checkpoint_due = !l.try_checkpoint();
             }
         }
+        // The adaptive mode (`train.rl.replay_ratio`): may the learner take the next episode
+        // (it has done at least `min` updates per episode taken), and may it train without one
+        // (fewer than `max` per episode)? The fixed schedule takes every episode and trains on it.
+        let (episodes, updates) = l.rl_progress();
+        let (may_take, may_train) = match ratio {
+            None => (true, false),
+            Some(r) => (
+                updates as f64 >= r.min * episodes as f64,
+                (updates as f64) < r.max * episodes as f64 && !l.core.replay().is_empty(),
+            ),
+        };
         // Everything the transport holds is taken in before one episode is trained on: a
         // transport that serves its senders in a fixed order (iceoryx2 reads its publishers'
         // queues one after the other) would otherwise hand over the first actor's next
         // episode every time and starve the others until their queues fill up. Arrivals are
         // then trained in the order they came, one per round of updates.
-        if pending.is_empty() {
+        if pending.is_empty() && !may_train {
             let waited = Instant::now();
             let first = subscriber.recv_timeout(Duration::from_millis(50))?;
             l.wait += waited.elapsed();
@@ -904,56 +987,49 @@ pub fn run_with_probe(
                 None => break,
             }
         }
+        if !may_take || pending.is_empty() {
+            if may_train {
+                // Train on: a round of at most `batches_per_episode` updates, no further than
+                // `max` per episode; new weights go out after each round (a bounded rate,
+                // whatever the number of actors).
+                let r = ratio.expect("may_train only in the adaptive mode");
+                let room = (r.max * episodes as f64).ceil() as u64 - updates;
+                let batches = room.clamp(1, spec.train.rl.batches_per_episode.max(1) as u64);
+                l.train_round(batches as u32)?;
+                l.publish_weights()?;
+                published_since_tick = true;
+            }
+            continue;
+        }
         let Some(msg) = pending.pop_front() else {
             continue;
         };
-        if msg.header.sender.role != Role::Actor {
-            l.rejected_episodes += 1;
-            warn_sometimes(
-                "rejected",
-                l.rejected_episodes,
-                format_args!(
-                    "transitions from a non-actor ({}) ignored",
-                    msg.header.sender
-                ),
-            );
+        if l.take(msg) != Accepted::Stored {
             continue;
         }
-        let actor = msg.header.sender.index;
-        let bytes = match proto::encode_message(&msg) {
-            Ok(b) => b,
-            Err(e) => {
-                l.rejected_episodes += 1;
-                warn_sometimes(
-                    "rejected",
-                    l.rejected_episodes,
-                    format_args!("episode of actor {actor} does not re-encode: {e}"),
-                );
-                continue;
-            }
-        };
-        let accepted = l.accept_logged(
-            actor,
-            &msg.body,
-            msg.header.policy_version,
-            true,
-            Some(&bytes),
-        );
-        // Acknowledge stored and duplicate episodes; a refused one from an unknown actor gets
-        // nothing (no per-actor state for strangers).
-        if accepted != Accepted::Refused || l.accepted_below.contains_key(&actor) {
-            l.ack(actor);
+        if ratio.is_some() {
+            l.log_stored();
+        } else {
+            l.train_stored()?;
+            l.publish_weights()?;
         }
-        if accepted != Accepted::Stored {
-            continue;
-        }
-        l.train_stored()?;
-        l.publish_weights()?;
         l.publish_control();
         published_since_tick = true;
         let done = l.core.counters().rl_episodes;
         if (every > 0 && done.is_multiple_of(every)) || checkpoint_due {
             checkpoint_due = !l.try_checkpoint();
+        }
+    }
+    if let (Some(r), RunPhase::Finished) = (ratio, l.phase()) {
+        // The last episodes taken get their share too: at least `min` updates per episode.
+        loop {
+            let (episodes, updates) = l.rl_progress();
+            let owed = (r.min * episodes as f64).ceil() as u64;
+            if updates >= owed || l.core.replay().is_empty() || stop.load(Ordering::SeqCst) {
+                break;
+            }
+            let batches = (owed - updates).min(spec.train.rl.batches_per_episode.max(1) as u64);
+            l.train_round(batches as u32)?;
         }
     }
 

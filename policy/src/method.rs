@@ -186,6 +186,22 @@ pub struct RlConfig {
     pub target_update_episodes: u64,
     pub replay_capacity: usize,
     pub replay_filter: ReplayFilter,
+    /// The adaptive mode (distributed runs only; docs/TRAINING.md): instead of exactly
+    /// `batches_per_episode` updates per accepted episode, the learner trains flat out and the
+    /// actors add as much experience as they can, the realised updates per accepted episode kept
+    /// between `min` and `max` (Reverb's sample-to-insert ratio). Absent: the fixed schedule.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub replay_ratio: Option<ReplayRatio>,
+}
+
+/// Bounds of the adaptive mode's replay ratio, in updates (batches) per accepted RL episode:
+/// below `min` the learner takes no further episode (the actors wait for credits), at `max` it
+/// waits for one instead of training on.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ReplayRatio {
+    pub min: f64,
+    pub max: f64,
 }
 
 impl Default for RlConfig {
@@ -201,6 +217,7 @@ impl Default for RlConfig {
             target_update_episodes: 50,
             replay_capacity: 100_000,
             replay_filter: ReplayFilter::All,
+            replay_ratio: None,
         }
     }
 }
@@ -343,6 +360,22 @@ impl TrainConfig {
                 p.push(format!("{name} must be at least 1"));
             }
         }
+        if let Some(r) = self.rl.replay_ratio {
+            if !(r.min.is_finite() && r.max.is_finite() && r.min >= 0.0 && r.max > 0.0) {
+                p.push(format!(
+                    "train.rl.replay_ratio bounds must be finite, min >= 0 and max > 0, got min = {} and max = {}",
+                    r.min, r.max
+                ));
+            } else if r.min > r.max {
+                p.push(format!(
+                    "train.rl.replay_ratio: min ({}) must not exceed max ({})",
+                    r.min, r.max
+                ));
+            }
+            if self.rl.batches_per_episode == 0 {
+                p.push("train.rl.replay_ratio needs train.rl.batches_per_episode of at least 1 (the updates of one policy version in the adaptive mode)".into());
+            }
+        }
         if self.rl.target_update_episodes == 0 {
             p.push("train.rl.target_update_episodes must be at least 1".into());
         }
@@ -401,6 +434,43 @@ mod tests {
         assert!((rl.epsilon(1000) - 0.3).abs() < 1e-12);
         assert_eq!(rl.epsilon(2000), 0.1);
         assert_eq!(rl.epsilon(4999), 0.1);
+    }
+
+    #[test]
+    fn the_adaptive_modes_bounds_are_read_and_checked() {
+        let parsed: TrainConfig =
+            toml::from_str("[rl]\nreplay_ratio = { min = 2, max = 20.5 }\n").unwrap();
+        assert_eq!(
+            parsed.rl.replay_ratio,
+            Some(ReplayRatio {
+                min: 2.0,
+                max: 20.5
+            })
+        );
+        assert!(parsed.problems().is_empty());
+        // Absent by default, and then not written (configs and model files stay as they were).
+        let text = toml::to_string(&TrainConfig::default()).unwrap();
+        assert!(!text.contains("replay_ratio"), "{text}");
+        let err = toml::from_str::<TrainConfig>("[rl]\nreplay_ratio = { min = 2, mx = 3 }\n")
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("mx"), "{err}");
+        for (min, max, says) in [
+            (5.0, 2.0, "must not exceed max"),
+            (-1.0, 2.0, "min >= 0"),
+            (0.0, 0.0, "max > 0"),
+            (1.0, f64::INFINITY, "finite"),
+        ] {
+            let mut c = TrainConfig::default();
+            c.rl.replay_ratio = Some(ReplayRatio { min, max });
+            let p = c.problems();
+            assert_eq!(p.len(), 1, "{p:?}");
+            assert!(p[0].contains(says), "{p:?}");
+        }
+        let mut c = TrainConfig::default();
+        c.rl.replay_ratio = Some(ReplayRatio { min: 1.0, max: 2.0 });
+        c.rl.batches_per_episode = 0;
+        assert!(c.problems()[0].contains("batches_per_episode"));
     }
 
     #[test]

@@ -92,7 +92,7 @@ fn input_to_command(people: usize) {
     };
     let (tx, rx) = serve::node::channel();
     let stop = tx.clone();
-    let server = std::thread::spawn(move || serve::run(&opts, (tx, rx)).unwrap());
+    let server = std::thread::spawn(move || serve::run(&opts, (tx, rx), || {}).unwrap());
     let cfg = transport::ZenohConfig::peer(
         vec!["tcp/127.0.0.1:0".into()],
         vec![format!("tcp/127.0.0.1:{port}")],

@@ -353,12 +353,14 @@ fn log_transition(last: &mut Option<String>, out: &Output) {
 }
 
 /// Runs `fsrl serve` until [`Event::Shutdown`] arrives on `events` (its sender side was given to
-/// a signal handler, see [`channel`]). Prints `ready` on stdout once everything is declared.
-/// A model that does not load is reported with a zero command on `cmd_vel` before the error
-/// returns.
+/// a signal handler, see [`channel`]). Calls `on_ready` once, when the model is loaded and every
+/// subscriber, the command publisher and the queryable are declared (the CLI then prints
+/// `ready`, which tests wait for). A model that does not load is reported with a zero command on
+/// `cmd_vel` before the error returns, without `on_ready`.
 pub fn run(
     opts: &ServeOptions,
     events: (Sender<Event>, Receiver<Event>),
+    on_ready: impl FnOnce(),
 ) -> Result<Summary, ServeError> {
     opts.topics.check().map_err(ServeError::Config)?;
     let act_key =
@@ -426,7 +428,7 @@ pub fn run(
         queryable = %act_key,
         "serving"
     );
-    println!("ready");
+    on_ready();
 
     let mut summary = Summary::default();
     let mut last_log: Option<String> = None;

@@ -1,6 +1,9 @@
 //! Tracked people from the three message types (`--people-format`), as the policy sees them.
 
-use crate::msg::{self, AgentStates, CdrError, Header, People, Person, Point, TrackedPersons};
+use crate::msg::{
+    self, AgentState, AgentStates, CdrError, Header, People, Person, Point, Pose,
+    PoseWithCovariance, TrackedPerson, TrackedPersons, Twist, TwistWithCovariance,
+};
 use sim::Vec2;
 
 /// Which message the people topic carries.
@@ -172,6 +175,82 @@ pub fn person_with_tags(name: String, p: &PersonObs) -> Person {
     }
 }
 
+/// The people message of `format` for `people` (the inverse of [`decode`]): `people_msgs/People`
+/// with every tag fsrl reads ([`person_with_tags`]); spencer's `TrackedPersons` and pedsim's
+/// `AgentStates` with what those messages hold, positions and velocities (pedsim's social state
+/// `standing` or `individual_moving` as well, which [`decode`] does not read), so the reader
+/// fills in the rest as for any tracker. Person `i` is track or agent `i`.
+pub fn encode(
+    format: PeopleFormat,
+    header: &Header,
+    people: &[PersonObs],
+) -> Result<Vec<u8>, CdrError> {
+    let point = |v: Vec2| Point {
+        x: v.x,
+        y: v.y,
+        z: 0.0,
+    };
+    let pose = |p: &PersonObs| Pose {
+        position: point(p.position),
+        ..Pose::default()
+    };
+    let twist = |p: &PersonObs| Twist {
+        linear: point(p.velocity),
+        ..Twist::default()
+    };
+    match format {
+        PeopleFormat::People => msg::encode(&People {
+            header: header.clone(),
+            people: people
+                .iter()
+                .enumerate()
+                .map(|(i, p)| person_with_tags(i.to_string(), p))
+                .collect(),
+        }),
+        PeopleFormat::Spencer => msg::encode(&TrackedPersons {
+            header: header.clone(),
+            tracks: people
+                .iter()
+                .zip(0..)
+                .map(|(p, i)| TrackedPerson {
+                    track_id: i,
+                    is_matched: true,
+                    detection_id: i,
+                    pose: PoseWithCovariance {
+                        pose: pose(p),
+                        ..PoseWithCovariance::default()
+                    },
+                    twist: TwistWithCovariance {
+                        twist: twist(p),
+                        ..TwistWithCovariance::default()
+                    },
+                    ..TrackedPerson::default()
+                })
+                .collect(),
+        }),
+        PeopleFormat::Pedsim => msg::encode(&AgentStates {
+            header: header.clone(),
+            agent_states: people
+                .iter()
+                .zip(0..)
+                .map(|(p, i)| AgentState {
+                    header: header.clone(),
+                    id: i,
+                    social_state: if p.standing == Some(true) {
+                        "standing"
+                    } else {
+                        "individual_moving"
+                    }
+                    .into(),
+                    pose: pose(p),
+                    twist: twist(p),
+                    ..AgentState::default()
+                })
+                .collect(),
+        }),
+    }
+}
+
 /// Decodes a people message of `format`; positions and velocities must be finite, radii and
 /// speeds positive.
 pub fn decode(format: PeopleFormat, bytes: &[u8]) -> Result<PeopleObs, PeopleError> {
@@ -222,9 +301,6 @@ pub fn decode(format: PeopleFormat, bytes: &[u8]) -> Result<PeopleObs, PeopleErr
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::msg::{
-        AgentState, Pose, PoseWithCovariance, TrackedPerson, Twist, TwistWithCovariance,
-    };
 
     #[test]
     fn the_three_formats_give_positions_and_velocities() {
@@ -296,6 +372,41 @@ mod tests {
         assert_eq!(back.people, vec![bare]);
         // A format mismatch is an error, not a panic.
         assert!(decode(PeopleFormat::Pedsim, &msg::encode(&people).unwrap()).is_err());
+    }
+
+    #[test]
+    fn encode_is_decode_s_inverse_for_what_each_format_holds() {
+        let header = Header {
+            frame_id: "odom".into(),
+            ..Header::default()
+        };
+        let people = [
+            PersonObs::of_human(&sim::HumanState {
+                position: Vec2::new(1.5, -2.0),
+                velocity: Vec2::new(0.1, -0.7),
+                goal: Vec2::new(-1.0 / 3.0, 4.0),
+                radius_m: 0.3,
+                v_pref_mps: 1.0,
+                standing: false,
+            }),
+            PersonObs::tracked(Vec2::new(-3.0, 0.25), Vec2::zeros()),
+        ];
+        for format in [
+            PeopleFormat::People,
+            PeopleFormat::Spencer,
+            PeopleFormat::Pedsim,
+        ] {
+            let back = decode(format, &encode(format, &header, &people).unwrap()).unwrap();
+            assert_eq!(back.header, header, "{format:?}");
+            let want: Vec<PersonObs> = match format {
+                PeopleFormat::People => people.to_vec(),
+                _ => people
+                    .iter()
+                    .map(|p| PersonObs::tracked(p.position, p.velocity))
+                    .collect(),
+            };
+            assert_eq!(back.people, want, "{format:?}");
+        }
     }
 
     #[test]

@@ -1,8 +1,10 @@
 //! The robot stand-in (`fsrl sim --as-robot`): plays episodes of one setting as a robot would
 //! appear to `fsrl serve`: it publishes the goal (once per episode), then per step the people
-//! (`people_msgs/People`, with fsrl's tags: radius, goal, preferred speed, standing) and the
-//! odometry (frame `odom`, twist in `base_link`), waits for the `cmd_vel` that answers them and
-//! executes it as the nearest action. Or it asks the queryable instead of using topics.
+//! (in any of the three formats, [`people::encode`]: `people_msgs/People` with fsrl's tags
+//! (radius, goal, preferred speed, standing), spencer's or pedsim's messages with positions and
+//! velocities only) and the odometry (frame `odom`, twist in `base_link`), waits for the
+//! `cmd_vel` that answers them and executes it as the nearest action. Or it asks the queryable
+//! instead of using topics.
 //!
 //! Stamps are simulated time (`1000 s` + the steps so far + 1 s between episodes), so the
 //! served episode clock counts the simulator's steps.
@@ -11,23 +13,27 @@ use std::ops::Range;
 use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
-use policy::lookahead::Lookahead;
 use sim::{Env, Outcome, Setting, SimConfig};
 use zenoh::Wait;
 
 use crate::msg::{
-    self, Header, Odometry, People, Point, Pose, PoseStamped, Quaternion, Time, Twist,
+    self, AgentStates, Header, Odometry, People, Point, Pose, PoseStamped, Quaternion, Time,
+    TrackedPersons, Twist,
 };
-use crate::node::{RosNode, ServeError, Topics};
-use crate::people::{person_with_tags, PersonObs};
+use crate::node::{RosNode, RosPublisher, ServeError, Topics};
+use crate::people::{self, PeopleFormat, PersonObs};
 use crate::ros2::Ros2Style;
-use crate::served::{Command, ServedPolicy};
+use crate::served::{Command, Observation, ServedPolicy};
 
 /// How the stand-in reaches the policy.
 #[derive(Debug, Clone)]
 pub enum Link {
-    /// ROS 2 topics (People format) in `style`.
-    Topics { style: Ros2Style, topics: Topics },
+    /// ROS 2 topics in `style`, the people in `people`'s message.
+    Topics {
+        style: Ros2Style,
+        topics: Topics,
+        people: PeopleFormat,
+    },
     /// The queryable `fsrl/serve/<name>/act`.
     Queryable { name: String },
 }
@@ -54,7 +60,8 @@ pub struct EpisodeResult {
     pub outcome: Outcome,
     pub steps: u32,
     /// Steps where the command received was not the action the reference policy (the model,
-    /// in-process, on the simulator's exact state) chose; `None` without a reference.
+    /// in-process, on the state the messages convey, see [`Reference`]) chose; `None` without a
+    /// reference.
     pub disagreements: Option<u32>,
 }
 
@@ -73,16 +80,23 @@ impl EpisodeResult {
     }
 }
 
-/// The in-process decision to compare with (a model's policy on the exact state).
+/// The in-process decision to compare with: the model deciding as `fsrl serve` and `fsrl eval`
+/// do ([`ServedPolicy`], with the played setting's visibility) on the state the robot's messages
+/// convey, read back from the bytes it sends: the simulator's exact state through the queryable
+/// and `people_msgs/People` with fsrl's tags; the people's positions and velocities only through
+/// spencer's and pedsim's messages (the rest as `fsrl serve` fills it in). A disagreement is
+/// then the link's doing (the heading's quaternion, the body frame), never what a format
+/// cannot say.
 pub struct Reference<'a> {
     pub model: &'a learner::model::Model,
 }
 
 struct Links {
     node: RosNode,
-    odom: crate::node::RosPublisher,
-    people: crate::node::RosPublisher,
-    goal: crate::node::RosPublisher,
+    odom: RosPublisher,
+    people: RosPublisher,
+    people_format: PeopleFormat,
+    goal: RosPublisher,
     cmd: mpsc::Receiver<Vec<u8>>,
     _sub: zenoh::pubsub::Subscriber<()>,
 }
@@ -119,16 +133,10 @@ fn odometry_of(env: &Env, t_s: f64) -> Odometry {
     o
 }
 
-fn people_of(env: &Env, t_s: f64) -> People {
-    People {
-        header: header(t_s),
-        people: env
-            .humans()
-            .iter()
-            .enumerate()
-            .map(|(i, h)| person_with_tags(i.to_string(), &PersonObs::of_human(h)))
-            .collect(),
-    }
+/// The people message of `format` for the env's humans (what a perfect tracker sees).
+fn people_of(env: &Env, t_s: f64, format: PeopleFormat) -> Result<Vec<u8>, ServeError> {
+    let humans: Vec<PersonObs> = env.humans().iter().map(PersonObs::of_human).collect();
+    people::encode(format, &header(t_s), &humans).map_err(|e| ServeError::Config(e.to_string()))
 }
 
 /// The queryable's request for the env's exact state.
@@ -190,22 +198,26 @@ pub fn run(
         .map_err(|e| ServeError::Config(e.to_string()))?;
     let dt = opts.sim.dt_s;
     let deadline = Instant::now() + opts.wait_for_server;
-    let mut lookahead = reference.as_ref().map(|r| {
-        Lookahead::new(
-            r.model.train.gamma,
-            r.model.train.human_model.into(),
-            r.model.method.human_order(),
-        )
-        .with_terminal_previews(r.model.train.terminal_previews)
-    });
+    let mut reference_policy = reference
+        .as_ref()
+        .map(|r| ServedPolicy::from_model(r.model.clone(), Some(opts.setting.robot_visible)))
+        .transpose()?;
 
     // Either topics or a session for queries.
     let (mut links, session, act_key) = match &opts.link {
-        Link::Topics { style, topics } => {
+        Link::Topics {
+            style,
+            topics,
+            people: people_format,
+        } => {
             topics.check().map_err(ServeError::Config)?;
             let mut node = RosNode::open(&opts.zenoh, style.clone(), "fsrl_robot")?;
             let odom = node.publisher::<Odometry>(&topics.odom)?;
-            let people = node.publisher::<People>(&topics.people)?;
+            let people = match people_format {
+                PeopleFormat::People => node.publisher::<People>(&topics.people)?,
+                PeopleFormat::Spencer => node.publisher::<TrackedPersons>(&topics.people)?,
+                PeopleFormat::Pedsim => node.publisher::<AgentStates>(&topics.people)?,
+            };
             let goal = node.publisher::<PoseStamped>(&topics.goal)?;
             let (tx, cmd) = mpsc::channel();
             let sub = node.subscribe::<Twist>(&topics.cmd_vel, move |b| {
@@ -220,6 +232,7 @@ pub fn run(
                     node,
                     odom,
                     people,
+                    people_format: *people_format,
                     goal,
                     cmd,
                     _sub: sub,
@@ -294,18 +307,29 @@ pub fn run(
         let t0 = t_s;
         while !env.is_done() {
             let t = t0 + env.steps() as f64 * dt;
-            let want = match (&mut lookahead, &reference) {
-                (Some(la), Some(r)) => Some(
-                    la.decide(&mut env, &r.model.net)
-                        .map_err(|e| ServeError::Config(e.to_string()))?
-                        .action,
-                ),
-                _ => None,
+            // The people message of this step: published below, read back by the reference.
+            let people_bytes = links
+                .as_ref()
+                .map(|l| people_of(&env, t, l.people_format))
+                .transpose()?;
+            let want = match &mut reference_policy {
+                Some(p) => {
+                    let mut obs = Observation::of_env(&env);
+                    if let (Some(l), Some(b)) = (&links, &people_bytes) {
+                        obs.humans = people::decode(l.people_format, b)
+                            .map_err(|e| ServeError::Config(e.to_string()))?
+                            .people;
+                    }
+                    Some(p.decide(&obs)?.action)
+                }
+                None => None,
             };
             let action = match (&mut links, &session) {
                 (Some(l), _) => {
                     while l.cmd.try_recv().is_ok() {}
-                    l.people.put(&people_of(&env, t))?;
+                    if let Some(b) = people_bytes {
+                        l.people.put_bytes(b)?;
+                    }
                     l.odom.put(&odometry_of(&env, t))?;
                     let bytes = l.cmd.recv_timeout(opts.reply_timeout).map_err(|_| {
                         ServeError::Zenoh(format!(

@@ -5,16 +5,18 @@
 //!   fields, reads fsrl's bytes back to the same fields, and fsrl reads rosbags' bytes back to
 //!   the same message; and the Jazzy type hashes fsrl puts in keys are rosbags' `hash_rihs01`;
 //! - rmw_zenoh's keys, liveliness tokens and attachment against `fixtures/rmw_zenoh.json`,
-//!   written from rmw_zenoh's sources (not from this crate).
+//!   written from rmw_zenoh's sources (not from this crate);
+//! - the publisher GID (XXH3-128 of the liveliness token, as rmw_zenoh derives it) against
+//!   Python's `xxhash` (the reference C implementation), in the byte order of the attachment.
 //!
-//! Needs `python3` with `rosbags` (tools/test.sh installs it into .venv/).
+//! Needs `python3` with `rosbags` and `xxhash` (tools/test.sh installs them into .venv/).
 
 use std::io::Write;
 use std::process::{Command, Stdio};
 
 use serde::Serialize;
 use serve::msg::{self, *};
-use serve::ros2::{Attachment, Distro, Entity, NodeId, Ros2Style};
+use serve::ros2::{gid_of, Attachment, Distro, Entity, NodeId, Ros2Style};
 
 #[derive(Serialize)]
 struct Sample {
@@ -183,31 +185,36 @@ fn cases() -> Vec<Case> {
     v
 }
 
-#[test]
-fn cdr_bytes_match_rosbags_both_ways_and_type_hashes_agree() {
-    let cases = cases();
-    let samples: Vec<&Sample> = cases.iter().map(|c| &c.sample).collect();
-    let script = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/fixtures/cdr_check.py");
+/// Runs `tests/fixtures/<script>` with `input` as JSON on stdin; its stdout as JSON.
+fn python(script: &str, input: &impl Serialize) -> serde_json::Value {
+    let path = format!("{}/tests/fixtures/{script}", env!("CARGO_MANIFEST_DIR"));
     let mut child = Command::new("python3")
-        .arg(script)
+        .arg(&path)
         .stdin(Stdio::piped())
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
         .spawn()
-        .expect("python3 with the `rosbags` package is required (tools/test.sh installs it)");
+        .expect("python3 with `rosbags` and `xxhash` is required (tools/test.sh installs them)");
     child
         .stdin
         .take()
         .unwrap()
-        .write_all(&serde_json::to_vec(&samples).unwrap())
+        .write_all(&serde_json::to_vec(input).unwrap())
         .unwrap();
     let out = child.wait_with_output().unwrap();
     assert!(
         out.status.success(),
-        "cdr_check.py failed (python3 with `rosbags` is required):\n{}",
+        "{script} failed (python3 with `rosbags` and `xxhash` is required):\n{}",
         String::from_utf8_lossy(&out.stderr)
     );
-    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    serde_json::from_slice(&out.stdout).unwrap()
+}
+
+#[test]
+fn cdr_bytes_match_rosbags_both_ways_and_type_hashes_agree() {
+    let cases = cases();
+    let samples: Vec<&Sample> = cases.iter().map(|c| &c.sample).collect();
+    let v = python("cdr_check.py", &samples);
     let results = v["results"].as_array().unwrap();
     assert_eq!(results.len(), cases.len());
     for (c, r) in cases.iter().zip(results) {
@@ -307,5 +314,99 @@ fn rmw_zenoh_keys_tokens_and_attachments_match_the_fixtures() {
         assert_eq!(bytes.len(), 33);
         assert_eq!(att.encode().to_vec(), bytes);
         assert_eq!(Attachment::decode(&bytes), Some(att));
+    }
+}
+
+/// Liveliness keys whose GID is checked: tokens of every kind fsrl declares, in both distros,
+/// with a real session id (32 hex digits) and topics of the lengths robots use, the fixture's
+/// tokens, and strings of every length class XXH3 hashes differently (0, 1-3, 4-8, 9-16, 17-128,
+/// 129-240 bytes and longer), since tokens cross those bounds with names and type hashes.
+fn gid_keys() -> Vec<String> {
+    let node = |namespace: &str, name: &str| NodeId {
+        zid: "d6a4e1f0c3b2a1908f7e6d5c4b3a2910".into(),
+        nid: 0,
+        namespace: namespace.into(),
+        name: name.into(),
+        enclave: "/".into(),
+    };
+    let fsrl = node("/", "fsrl");
+    let long = node("/warehouse/fleet_a", "crowd_navigation_policy_server");
+    let mut keys = Vec::new();
+    for distro in [Distro::Humble, Distro::Jazzy] {
+        for domain in [0, 42] {
+            keys.push(fsrl.liveliness::<Twist>(domain, distro, 0, Entity::Node));
+            keys.push(fsrl.liveliness::<Twist>(
+                domain,
+                distro,
+                1,
+                Entity::Publisher { topic: "cmd_vel" },
+            ));
+            keys.push(fsrl.liveliness::<Odometry>(
+                domain,
+                distro,
+                2,
+                Entity::Subscription { topic: "/odom" },
+            ));
+            keys.push(fsrl.liveliness::<PoseStamped>(
+                domain,
+                distro,
+                3,
+                Entity::Subscription { topic: "goal_pose" },
+            ));
+            keys.push(fsrl.liveliness::<TrackedPersons>(
+                domain,
+                distro,
+                4,
+                Entity::Subscription {
+                    topic: "/spencer/perception/tracked_persons",
+                },
+            ));
+            keys.push(long.liveliness::<AgentStates>(
+                domain,
+                distro,
+                17,
+                Entity::Subscription {
+                    topic: "/warehouse/fleet_a/pedsim_visualizer/simulated_agents_in_the_odometry_frame",
+                },
+            ));
+        }
+    }
+    for t in fixture()["tokens"].as_array().unwrap() {
+        keys.push(t["token"].as_str().unwrap().to_string());
+    }
+    for len in [
+        0, 1, 3, 4, 8, 9, 16, 17, 64, 128, 129, 200, 240, 241, 500, 1100,
+    ] {
+        keys.push(
+            (0..len)
+                .map(|i| (b'!' + (i * 7 % 90) as u8) as char)
+                .collect(),
+        );
+    }
+    keys
+}
+
+#[test]
+fn publisher_gids_are_xxh3_128_of_the_token_as_python_xxhash_computes_it() {
+    let keys = gid_keys();
+    let lengths: Vec<usize> = keys.iter().map(String::len).collect();
+    assert!(
+        lengths.iter().any(|&l| (129..=240).contains(&l)) && lengths.iter().any(|&l| l > 240),
+        "tokens of every length class: {lengths:?}"
+    );
+    let v = python("gid_check.py", &keys);
+    let theirs = v.as_array().unwrap();
+    assert_eq!(theirs.len(), keys.len());
+    for (key, want) in keys.iter().zip(theirs) {
+        let want = unhex(want.as_str().unwrap());
+        let gid = gid_of(key);
+        assert_eq!(gid.to_vec(), want, "GID of {key:?}");
+        // Where rmw_zenoh's subscribers read it: the attachment's last 16 bytes.
+        let att = Attachment {
+            sequence_number: 1,
+            source_timestamp_ns: 0,
+            source_gid: gid,
+        };
+        assert_eq!(&att.encode()[17..], &want[..], "{key:?}");
     }
 }

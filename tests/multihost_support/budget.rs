@@ -59,6 +59,8 @@ pub struct Spec {
     pub hub_cores: f64,
     /// `[train.rl] batches_per_episode` (0: learner updates off).
     pub batches_per_episode: u32,
+    /// `[train.rl] replay_ratio` (min, max): the adaptive mode; None: the fixed schedule.
+    pub replay_ratio: Option<(f64, f64)>,
     /// RL episodes the learner must have taken in (and every actor be alive) before measuring.
     pub warm_episodes: f64,
     /// The measured window.
@@ -131,9 +133,11 @@ fn fsrl() -> &'static Path {
 }
 
 /// A deploy config for a run of the emulated cluster (SARL on env1-invisible, a short warm
-/// start, RL without end, `batches_per_episode` updates per episode, the learner's update
-/// `threads` when given, else its default); `deploy` is a file of `deploy/` or `actor-<k>`
-/// (actor k's own file, made as `deploy/README.md` makes it). The benchmarks share it.
+/// start, RL without end, `batches_per_episode` updates per episode or the adaptive mode's
+/// `replay_ratio` bounds, the learner's update `threads` when given, else its default);
+/// `deploy` is a file of `deploy/` or `actor-<k>` (actor k's own file, made as
+/// `deploy/README.md` makes it). The benchmarks share it.
+#[allow(clippy::too_many_arguments)]
 pub fn run_config(
     dir: &Path,
     deploy: &str,
@@ -141,6 +145,7 @@ pub fn run_config(
     run_id: &str,
     endpoint: &str,
     batches_per_episode: u32,
+    replay_ratio: Option<(f64, f64)>,
     threads: Option<u32>,
 ) -> PathBuf {
     let run_dir = dir.join(format!("run-{run_id}"));
@@ -160,6 +165,12 @@ pub fn run_config(
             "batches_per_episode".into(),
             i64::from(batches_per_episode).into(),
         );
+        if let Some((min, max)) = replay_ratio {
+            let mut bounds = toml::Table::new();
+            bounds.insert("min".into(), min.into());
+            bounds.insert("max".into(), max.into());
+            rl.insert("replay_ratio".into(), toml::Value::Table(bounds));
+        }
         if t.contains_key("learner") {
             let l = table(t, &["learner"]);
             l.insert(
@@ -195,6 +206,7 @@ fn config(
         run_id,
         endpoint,
         spec.batches_per_episode,
+        spec.replay_ratio,
         Some(spec.learner_threads),
     )
 }

@@ -49,6 +49,10 @@ pub enum TrainerError {
         "interrupted during the demonstrations (nothing to checkpoint yet; rerun the same command)"
     )]
     InterruptedInWarmStart,
+    #[error(
+        "train.rl.replay_ratio (the adaptive mode: the learner trains flat out while actors add experience) needs a distributed run; --single-process runs the fixed schedule of train.rl.batches_per_episode updates per episode: drop --single-process or the replay_ratio line"
+    )]
+    AdaptiveNeedsProcesses,
 }
 
 fn io(what: impl Into<String>) -> impl FnOnce(std::io::Error) -> TrainerError {
@@ -119,6 +123,9 @@ pub fn run(
     let out = run.out;
     let sim_cfg = spec.method_sim();
     let train = core.config().clone();
+    if train.rl.replay_ratio.is_some() {
+        return Err(TrainerError::AdaptiveNeedsProcesses);
+    }
     let run_info = RunInfo {
         run_id: run.run_id.clone(),
         setting: spec.setting.name().to_string(),

@@ -17,6 +17,7 @@
 //! | reliable | `CongestionControl::Block`, reliable links | no overflow, `RetryUntilDelivered` up to `publish_timeout_ms`, then [`TransportError::PublishTimeout`]; a sample that reached no subscriber while one exists (not yet connected) is sent again within the same limit |
 //! | best effort | `CongestionControl::Drop`, express | overflow (oldest dropped) |
 //! | latest value | `CongestionControl::Drop` (a subscriber that never reads cannot stall the publisher; a newer value supersedes a dropped one, [`LatestPublisher::republish`] repeats the last) | history of 1 |
+//! | reliable, superseded and repeated ([`Transport::dropping_publisher`]: acks) | `CongestionControl::Drop`, reliable links (a subscriber that never reads cannot stall the publisher; the next message supersedes a dropped one) | as reliable |
 //!
 //! Liveliness and telemetry always ride on zenoh, even with the iceoryx2 data plane, so that
 //! other tools (Python `eclipse-zenoh`, `z_sub`) see metrics and membership, and because zenoh
@@ -30,7 +31,9 @@
 //! * [`Transport::publisher`] / [`Transport::subscriber`]: reliable or best-effort topics
 //!   (transitions, acks, eval reports, metrics, status). [`Publisher::publish`] stamps the
 //!   header (run, sender, sequence number, policy version), encodes and sends;
-//!   [`Subscriber::recv_timeout`] decodes and validates.
+//!   [`Subscriber::recv_timeout`] decodes and validates. [`Transport::dropping_publisher`]:
+//!   a reliable topic's publisher that drops rather than waits for a subscriber that does not
+//!   keep up (acks, which supersede each other and are repeated).
 //! * [`Transport::latest_publisher`] / [`Transport::latest_subscriber`]: latest-value topics
 //!   (weights, control). [`LatestSubscriber::latest`] is the newest value (a late joiner has
 //!   the current one at once); [`LatestSubscriber::next`] waits for a newer one.
@@ -159,6 +162,29 @@ impl Transport {
 
     /// A publisher for a reliable or best-effort topic (not a wildcard).
     pub fn publisher<M: Body>(&self, topic: &Topic<M>) -> Result<Publisher<M>, TransportError> {
+        self.publisher_with(topic, zenoh_impl::Congestion::ByDelivery)
+    }
+
+    /// A publisher for a reliable topic whose every message supersedes the previous one and is
+    /// repeated by its publisher (acknowledgements: cumulative, and the learner sends every
+    /// live actor its acknowledgement again on each metrics tick). Over zenoh a message is
+    /// dropped for a subscriber whose queue stays full (congestion control `Drop`) instead of
+    /// holding up the publication for the link's `wait_before_close`, so a subscriber that
+    /// never reads (a hung or hostile client) cannot stall the publisher; the links stay
+    /// reliable, so a subscriber that keeps up loses nothing. With the iceoryx2 data plane the
+    /// same as [`Transport::publisher`] (one machine's processes, no router in between).
+    pub fn dropping_publisher<M: Body>(
+        &self,
+        topic: &Topic<M>,
+    ) -> Result<Publisher<M>, TransportError> {
+        self.publisher_with(topic, zenoh_impl::Congestion::Drop)
+    }
+
+    fn publisher_with<M: Body>(
+        &self,
+        topic: &Topic<M>,
+        congestion: zenoh_impl::Congestion,
+    ) -> Result<Publisher<M>, TransportError> {
         check_publishable(topic)?;
         if topic.delivery() == Delivery::Latest {
             return Err(wrong_delivery(topic, "Transport::latest_publisher"));
@@ -175,6 +201,7 @@ impl Transport {
                 topic.key_expr(),
                 topic.delivery(),
                 topic.fanout(),
+                congestion,
             )?),
         };
         Ok(Publisher {

@@ -32,16 +32,29 @@ pub(crate) fn open(cfg: &ZenohConfig, max_message_bytes: usize) -> Result<Sessio
         .map_err(zenoh_err("open session"))
 }
 
+/// How a publication meets a receiver whose queue stays full.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum Congestion {
+    /// As the topic's delivery says ([`declare_publisher`]).
+    ByDelivery,
+    /// Dropped for that receiver whatever the delivery: for messages of a reliable topic that
+    /// each supersede the previous one and that the publisher repeats (acknowledgements).
+    Drop,
+}
+
 /// QoS per topic: reliable topics block (never dropped silently), best-effort topics drop, and
 /// so do latest-value topics (weights, control): a newer value supersedes the one dropped, the
 /// publisher repeats its current value when idle ([`LatestPublisher::republish`]), and a
 /// subscriber that never reads (a hung or hostile client) must not hold up the learner for the
 /// link's `wait_before_close` on every value; zenoh drops for that subscriber only.
+/// [`Congestion::Drop`] makes a reliable topic's publisher drop too (still over reliable
+/// links: a receiver that keeps up loses nothing).
 pub(crate) fn declare_publisher(
     session: &Session,
     key: &str,
     delivery: Delivery,
     fanout: Fanout,
+    congestion: Congestion,
 ) -> Result<Publisher<'static>, TransportError> {
     let b = session.declare_publisher(key.to_string());
     let b = match (delivery, fanout) {
@@ -59,6 +72,10 @@ pub(crate) fn declare_publisher(
         (Delivery::Reliable, Fanout::ManyToOne) => b
             .congestion_control(CongestionControl::Block)
             .priority(Priority::Data),
+    };
+    let b = match congestion {
+        Congestion::ByDelivery => b,
+        Congestion::Drop => b.congestion_control(CongestionControl::Drop),
     };
     b.wait().map_err(zenoh_err("declare publisher"))
 }
@@ -226,7 +243,7 @@ impl LatestPublisher {
         delivery: Delivery,
         fanout: Fanout,
     ) -> Result<Self, TransportError> {
-        let publisher = declare_publisher(session, key, delivery, fanout)?;
+        let publisher = declare_publisher(session, key, delivery, fanout, Congestion::ByDelivery)?;
         let last: Arc<Mutex<Option<ZBytes>>> = Arc::new(Mutex::new(None));
         let served = Arc::clone(&last);
         let reply_key = key.to_string();
