@@ -14,10 +14,12 @@
 //! `PLATEAU_CAP_S` seconds (default 720); afterwards each validated snapshot whose validation
 //! success is at least 0.95 is tested on the 500 test seeds (`fsrl eval`), in the order they were
 //! made, until one reaches the fast schedule's test success interval (0.983 ± 0.008: at least
-//! 0.975). Its time (the learner's clock when it took in the snapshot's last episode) is the
-//! run's time to the plateau; a run that gets there within its cap has none.
+//! 0.975). Its time (the evaluator's clock when it took the weights for that validation: the
+//! evaluator starts with the learner and validates the newest weights it has) is the run's
+//! time to the plateau; a run that does not get there within its cap has none.
 //!
-//! Results go to `docs/results/plateau/<config>-s<seed>.json`, one file per run; a run whose
+//! Results go to `docs/results/plateau/<config>-s<seed>.json`, one file per run, with the
+//! evaluator's validation log beside it (`<config>-s<seed>.validation.jsonl`); a run whose
 //! file exists is not run again (resumable; delete a file to redo it). The table of all files
 //! is printed at the end. Configs and seeds: `PLATEAU_CONFIGS` (default
 //! `fixed-4,adaptive-4,adaptive-2,adaptive-1`), `PLATEAU_SEEDS` (default `0,1,2`).
@@ -244,9 +246,10 @@ fn config_edit(t: &mut toml::Table, seed: u64, config: Config, endpoint: &str, r
 
 #[derive(serde::Serialize, serde::Deserialize)]
 struct Validation {
+    /// RL episodes the validated weights were trained on.
     episode: u64,
     success: f64,
-    /// The learner's clock when it took in the episode (s since it started).
+    /// The evaluator's clock when it took these weights (s since it started, with the learner).
     at_s: Option<f64>,
     test_success: Option<f64>,
 }
@@ -397,40 +400,30 @@ fn run(
         .core;
     let c = loaded.core.counters();
     let updates = c.updates - warm_core.counters().updates;
-    // The learner's clock per RL episode, from its log.
-    let mut at: std::collections::BTreeMap<u64, f64> = Default::default();
+    // The learner's clock at its last RL episode, from its log.
     let text = std::fs::read_to_string(run_dir.join("metrics.jsonl")).unwrap_or_default();
-    for l in text.lines() {
-        if let Ok(v) = serde_json::from_str::<serde_json::Value>(l) {
-            if v["phase"] == "rl" {
-                if let (Some(e), Some(w)) = (v["episode"].as_u64(), v["wall_s"].as_f64()) {
-                    at.insert(e, w);
-                }
-            }
-        }
-    }
-    let learner_wall = at.values().copied().fold(0.0, f64::max);
+    let learner_wall = text
+        .lines()
+        .filter_map(|l| serde_json::from_str::<serde_json::Value>(l).ok())
+        .filter(|v| v["phase"] == "rl")
+        .filter_map(|v| v["wall_s"].as_f64())
+        .fold(0.0, f64::max);
     let eval_dir = run_dir.join("evaluator");
-    let mut validations: Vec<Validation> =
-        std::fs::read_to_string(eval_dir.join("validation.jsonl"))
-            .unwrap_or_default()
-            .lines()
-            .filter_map(|l| serde_json::from_str::<serde_json::Value>(l).ok())
-            .filter_map(|v| {
-                let episode = v["episode"].as_u64()?;
-                Some(Validation {
-                    episode,
-                    success: v["success_rate"].as_f64()?,
-                    // Episode E's weights are those after the learner took in episode E - 1.
-                    at_s: if episode == 0 {
-                        Some(0.0)
-                    } else {
-                        at.get(&(episode - 1)).copied()
-                    },
-                    test_success: None,
-                })
+    let log = std::fs::read_to_string(eval_dir.join("validation.jsonl")).unwrap_or_default();
+    std::fs::write(results_dir().join(format!("{name}.validation.jsonl")), &log)
+        .map_err(|e| e.to_string())?;
+    let mut validations: Vec<Validation> = log
+        .lines()
+        .filter_map(|l| serde_json::from_str::<serde_json::Value>(l).ok())
+        .filter_map(|v| {
+            Some(Validation {
+                episode: v["episode"].as_u64()?,
+                success: v["success_rate"].as_f64()?,
+                at_s: v["wall_s"].as_f64(),
+                test_success: None,
             })
-            .collect();
+        })
+        .collect();
     let (mut plateau_s, mut plateau_episode) = (None, None);
     for v in &mut validations {
         if v.success < VALIDATION_BAR {

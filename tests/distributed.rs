@@ -725,26 +725,29 @@ fn two_actors_share_the_learner_fairly_over_iceoryx2() {
 #[test]
 fn the_adaptive_mode_keeps_its_replay_ratio_within_bounds() {
     let dir = tempfile::tempdir().unwrap();
-    let ratio = |name: &str, min: f64, max: f64| {
+    let ratio = |name: &str, min: f64, max: f64, evaluator: bool| {
         let out = dir.path().join(name);
         let config = dir.path().join(format!("{name}.toml"));
         std::fs::write(
             &config,
             format!(
-                "[train.imitation]\nepisodes = 6\nepochs = 1\n[train.rl]\nepisodes = 40\n\
+                "[train]\nvalidation_every_episodes = 10\nvalidation_episodes = 3\n\
+                 [train.imitation]\nepisodes = 6\nepochs = 1\n[train.rl]\nepisodes = 40\n\
                  batches_per_episode = 2\nreplay_ratio = {{ min = {min}, max = {max} }}\n"
             ),
         )
         .unwrap();
-        let o = Command::new(env!("CARGO_BIN_EXE_fsrl"))
-            .args(["train", "--method", "sarl", "--setting", "env1-invisible"])
-            .args(["--actors", "2", "--transport", "iceoryx2", "--no-evaluator"])
+        let mut cmd = Command::new(env!("CARGO_BIN_EXE_fsrl"));
+        cmd.args(["train", "--method", "sarl", "--setting", "env1-invisible"])
+            .args(["--actors", "2", "--transport", "iceoryx2"])
             .args(["--eval-episodes", "2", "--config"])
             .arg(&config)
             .arg("--out")
-            .arg(&out)
-            .output()
-            .unwrap();
+            .arg(&out);
+        if !evaluator {
+            cmd.arg("--no-evaluator");
+        }
+        let o = cmd.output().unwrap();
         let stderr = String::from_utf8_lossy(&o.stderr);
         assert!(o.status.success(), "{stderr}");
         let loaded = learner::checkpoint::load(&out.join("checkpoints/latest.ckpt")).unwrap();
@@ -756,11 +759,25 @@ fn the_adaptive_mode_keeps_its_replay_ratio_within_bounds() {
             realised >= min - 1e-9 && realised <= max + 1.0 / 40.0,
             "{name}: {realised} updates per episode, bounds [{min}, {max}]"
         );
-        realised
+        (realised, out)
     };
-    let tight = ratio("tight", 3.0, 3.0);
+    let (tight, out) = ratio("tight", 3.0, 3.0, true);
     assert!((tight - 3.0).abs() < 1e-9, "{tight}");
-    ratio("wide", 5.0, 400.0);
+    // A weights version is a round of updates here, not an episode: the evaluator labels its
+    // validations and snapshots with the RL episodes the weights say they were trained on.
+    let metrics = std::fs::read_to_string(out.join("metrics.jsonl")).unwrap();
+    let validated: Vec<u64> = metrics
+        .lines()
+        .map(|l| serde_json::from_str::<serde_json::Value>(l).unwrap())
+        .filter(|v| v["phase"] == "validation")
+        .map(|v| v["episode"].as_u64().unwrap())
+        .collect();
+    assert!(!validated.is_empty(), "{metrics}");
+    assert!(
+        validated.iter().all(|&e| e <= 40) && validated.contains(&40),
+        "validations labelled {validated:?} in a run of 40 RL episodes"
+    );
+    ratio("wide", 5.0, 400.0, false);
 
     // The lockstep mode has no adaptive schedule: refused before anything is written.
     let config = dir.path().join("tight.toml");

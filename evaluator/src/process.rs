@@ -342,8 +342,12 @@ pub fn run(
             continue;
         };
         let version = w.body.version;
-        // Versions advance once per imitation epoch and once per RL episode.
-        let trained = version.saturating_sub(il_epochs);
+        // The RL episodes the weights were trained on, as the learner says; a learner that does
+        // not say advanced its version once per imitation epoch and once per RL episode.
+        let trained = w
+            .body
+            .rl_episodes
+            .unwrap_or_else(|| version.saturating_sub(il_epochs));
         if last_version.is_some_and(|last| version < last) {
             let back = trained.saturating_sub(1);
             tracing::warn!(

@@ -116,10 +116,8 @@ struct Learner<'a> {
     /// capped by id ([`MAX_ACTORS`]); the watcher keeps at most
     /// [`transport::MAX_INSTANCES_PER_SENDER`] instances of an id (the newest), so a flood of
     /// tokens under one id neither fills the table nor crowds out other actors.
-    actors_alive: BTreeMap<u32, BTreeSet<u64>>,
+    actors_alive: AliveActors,
     evaluators_alive: HashSet<proto::Member>,
-    /// Actors not admitted because [`MAX_ACTORS`] ids were alive.
-    alive_refused: u64,
     /// Liveliness tokens the watcher did not track (too many instances of one id: the oldest
     /// displaced; too many senders), as of the last metrics tick.
     alive_tokens_refused: u64,
@@ -203,44 +201,37 @@ impl Learner<'_> {
         match ev {
             AliveEvent::Joined(m) if m.sender.role == Role::Actor => {
                 let index = m.sender.index;
-                if !self.actors_alive.contains_key(&index) && self.actors_alive.len() >= MAX_ACTORS
-                {
-                    self.alive_refused += 1;
-                    warn_sometimes(
-                        "alive",
-                        self.alive_refused,
-                        format_args!("ignoring actor {m}: {MAX_ACTORS} actor ids are alive"),
-                    );
-                    return false;
+                match self.actors_alive.join(index, m.instance, MAX_ACTORS) {
+                    Joined::Refused => {
+                        warn_sometimes(
+                            "alive",
+                            self.actors_alive.refused,
+                            format_args!("ignoring actor {m}: {MAX_ACTORS} actor ids are alive"),
+                        );
+                        false
+                    }
+                    Joined::Known => false,
+                    joined => {
+                        tracing::info!(actor = %m, "actor joined");
+                        self.ack(index);
+                        joined == Joined::NewId
+                    }
                 }
-                let new_id = !self.actors_alive.contains_key(&index);
-                if !self
-                    .actors_alive
-                    .entry(index)
-                    .or_default()
-                    .insert(m.instance)
-                {
-                    return false;
-                }
-                tracing::info!(actor = %m, "actor joined");
-                self.ack(index);
-                new_id
             }
             AliveEvent::Left(m) if m.sender.role == Role::Actor => {
                 let index = m.sender.index;
-                let Some(instances) = self.actors_alive.get_mut(&index) else {
-                    return false;
-                };
-                if !instances.remove(&m.instance) {
-                    return false;
+                match self.actors_alive.leave(index, m.instance) {
+                    Left::Unknown => false,
+                    Left::Instance => {
+                        tracing::warn!(actor = %m, "actor left");
+                        false
+                    }
+                    Left::LastInstance => {
+                        tracing::warn!(actor = %m, "actor left");
+                        self.acks.remove(&index);
+                        true
+                    }
                 }
-                tracing::warn!(actor = %m, "actor left");
-                if instances.is_empty() {
-                    self.actors_alive.remove(&index);
-                    self.acks.remove(&index);
-                    return true;
-                }
-                false
             }
             AliveEvent::Joined(m) if m.sender.role == Role::Evaluator => {
                 if self.evaluators_alive.len() < MAX_ACTORS {
@@ -258,7 +249,7 @@ impl Learner<'_> {
 
     /// The indices of the actors alive now, ascending, each once.
     fn live_actor_ids(&self) -> Vec<u32> {
-        self.actors_alive.keys().copied().collect()
+        self.actors_alive.ids().collect()
     }
 
     fn phase(&self) -> RunPhase {
@@ -328,7 +319,8 @@ impl Learner<'_> {
     fn publish_weights(&mut self) -> Result<(), ProcessError> {
         let version = self.core.counters().policy_version;
         let w = weights_message(self.core.online(), version)
-            .map_err(|e| ProcessError::Weights(e.to_string()))?;
+            .map_err(|e| ProcessError::Weights(e.to_string()))?
+            .with_rl_episodes(self.core.counters().rl_episodes);
         self.weights.publish(version, &w)?;
         Ok(())
     }
@@ -438,7 +430,7 @@ impl Learner<'_> {
             ("skipped_batches", self.core.skipped_batches() as f64),
             ("skipped_refreshes", self.core.skipped_refreshes() as f64),
             ("actors_alive", self.actors_alive.len() as f64),
-            ("alive_refused", self.alive_refused as f64),
+            ("alive_refused", self.actors_alive.refused as f64),
             ("alive_tokens_refused", self.alive_tokens_refused as f64),
             ("imitation_done", if c.imitation_done { 1.0 } else { 0.0 }),
         ] {
@@ -679,6 +671,84 @@ impl Learner<'_> {
     }
 }
 
+/// The actors alive, by id: each id with the liveliness instances alive under it. At most `cap`
+/// ids are admitted, however many instances an id declares (a flood of tokens under one id
+/// takes one place, so the actors that join after it are still admitted).
+#[derive(Debug, Default)]
+struct AliveActors {
+    ids: BTreeMap<u32, BTreeSet<u64>>,
+    /// Joins refused because `cap` ids were alive.
+    refused: u64,
+}
+
+/// What a liveliness token's arrival changed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Joined {
+    /// The id's first instance.
+    NewId,
+    /// Another instance of an id alive already.
+    NewInstance,
+    /// An instance already known.
+    Known,
+    /// A new id while `cap` ids were alive.
+    Refused,
+}
+
+/// What a liveliness token's departure changed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Left {
+    /// The id's last instance: the id is gone.
+    LastInstance,
+    /// One of several instances.
+    Instance,
+    Unknown,
+}
+
+impl AliveActors {
+    fn join(&mut self, id: u32, instance: u64, cap: usize) -> Joined {
+        let new_id = !self.ids.contains_key(&id);
+        if new_id && self.ids.len() >= cap {
+            self.refused += 1;
+            return Joined::Refused;
+        }
+        if !self.ids.entry(id).or_default().insert(instance) {
+            Joined::Known
+        } else if new_id {
+            Joined::NewId
+        } else {
+            Joined::NewInstance
+        }
+    }
+
+    fn leave(&mut self, id: u32, instance: u64) -> Left {
+        let Some(instances) = self.ids.get_mut(&id) else {
+            return Left::Unknown;
+        };
+        if !instances.remove(&instance) {
+            return Left::Unknown;
+        }
+        if instances.is_empty() {
+            self.ids.remove(&id);
+            Left::LastInstance
+        } else {
+            Left::Instance
+        }
+    }
+
+    fn len(&self) -> usize {
+        self.ids.len()
+    }
+
+    fn is_empty(&self) -> bool {
+        self.ids.is_empty()
+    }
+
+    /// The ids alive, ascending.
+    fn ids(&self) -> impl Iterator<Item = u32> + '_ {
+        self.ids.keys().copied()
+    }
+}
+
 /// What became of a received episode.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum Accepted {
@@ -786,9 +856,8 @@ pub fn run_with_probe(
         control: transport.latest_publisher(&keys::control(&run))?,
         metrics: transport.publisher(&keys::metrics(&run, transport.sender()))?,
         wal,
-        actors_alive: BTreeMap::new(),
+        actors_alive: AliveActors::default(),
         evaluators_alive: HashSet::new(),
-        alive_refused: 0,
         alive_tokens_refused: 0,
         window: Window {
             outcomes: VecDeque::new(),
@@ -1078,6 +1147,34 @@ pub fn run_with_probe(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Issue 35, item 1: the cap counts actor ids, not liveliness tokens, so one id's flood of
+    /// instances (under its own credentials) leaves room for every other actor.
+    #[test]
+    fn a_flood_of_one_ids_instances_takes_one_place() {
+        let mut alive = AliveActors::default();
+        assert_eq!(alive.join(0, 1, 3), Joined::NewId);
+        for instance in 2..5000 {
+            assert_eq!(alive.join(0, instance, 3), Joined::NewInstance);
+        }
+        assert_eq!(alive.join(0, 7, 3), Joined::Known);
+        assert_eq!(alive.len(), 1);
+        assert_eq!(alive.join(1, 1, 3), Joined::NewId);
+        assert_eq!(alive.join(2, 1, 3), Joined::NewId);
+        assert_eq!(alive.join(3, 1, 3), Joined::Refused);
+        assert_eq!(alive.refused, 1);
+        assert_eq!(alive.ids().collect::<Vec<_>>(), [0, 1, 2]);
+        // Id 0 stays until its last instance leaves; then id 3 gets the place.
+        assert_eq!(alive.leave(0, 1), Left::Instance);
+        assert_eq!(alive.leave(0, 1), Left::Unknown);
+        for instance in 2..4999 {
+            assert_eq!(alive.leave(0, instance), Left::Instance);
+        }
+        assert_eq!(alive.leave(0, 4999), Left::LastInstance);
+        assert_eq!(alive.leave(9, 1), Left::Unknown);
+        assert_eq!(alive.join(3, 1, 3), Joined::NewId);
+        assert!(!alive.is_empty());
+    }
 
     #[test]
     fn the_lag_quantile_is_the_nearest_rank() {

@@ -103,9 +103,21 @@ pub struct Weights {
     pub params: Vec<f32>,
     /// CRC-32 of the parameter bytes.
     pub crc32: u32,
+    /// RL episodes the learner had taken in when it exported these weights. Absent from older
+    /// learners, whose versions advanced once per RL episode after imitation; in the adaptive
+    /// mode (`train.rl.replay_ratio`) a version is a round of updates, so only this says how
+    /// far the run is.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rl_episodes: Option<u64>,
 }
 
 impl Weights {
+    /// The same weights, saying how many RL episodes they were trained on.
+    pub fn with_rl_episodes(mut self, rl_episodes: u64) -> Self {
+        self.rl_episodes = Some(rl_episodes);
+        self
+    }
+
     /// Builds a weight message, computing the checksum and validating everything.
     pub fn new(
         version: u64,
@@ -118,6 +130,7 @@ impl Weights {
             network,
             params,
             crc32,
+            rl_episodes: None,
         };
         w.validate()?;
         Ok(w)
