@@ -539,12 +539,7 @@ fn one_command_local_training_runs_every_process_and_leaves_a_run_directory() {
     assert_eq!(loaded.core.counters().rl_episodes, 4);
     let metrics = std::fs::read_to_string(out.join("metrics.jsonl")).unwrap();
     // The learner's training log: the imitation epoch and one line per RL episode, in order.
-    let rl: Vec<u64> = metrics
-        .lines()
-        .map(|l| serde_json::from_str::<serde_json::Value>(l).unwrap())
-        .filter(|v| v["phase"] == "rl")
-        .map(|v| v["episode"].as_u64().unwrap())
-        .collect();
+    let rl = episodes_of(&metrics, "rl");
     assert_eq!(rl, [0, 1, 2, 3], "{metrics}");
     assert!(metrics.contains("\"phase\":\"imitation\""), "{metrics}");
     // The learning curve: the evaluator scored the final weights on the validation seeds of the
@@ -766,12 +761,7 @@ fn the_adaptive_mode_keeps_its_replay_ratio_within_bounds() {
     // A weights version is a round of updates here, not an episode: the evaluator labels its
     // validations and snapshots with the RL episodes the weights say they were trained on.
     let metrics = std::fs::read_to_string(out.join("metrics.jsonl")).unwrap();
-    let validated: Vec<u64> = metrics
-        .lines()
-        .map(|l| serde_json::from_str::<serde_json::Value>(l).unwrap())
-        .filter(|v| v["phase"] == "validation")
-        .map(|v| v["episode"].as_u64().unwrap())
-        .collect();
+    let validated = episodes_of(&metrics, "validation");
     assert!(!validated.is_empty(), "{metrics}");
     assert!(
         validated.iter().all(|&e| e <= 40) && validated.contains(&40),
@@ -793,4 +783,14 @@ fn the_adaptive_mode_keeps_its_replay_ratio_within_bounds() {
     assert!(!o.status.success());
     assert!(stderr.contains("needs a distributed run"), "{stderr}");
     assert!(!out.exists());
+}
+
+/// The `episode` of every line of `phase` in a run's `metrics.jsonl`, in order.
+fn episodes_of(metrics: &str, phase: &str) -> Vec<u64> {
+    metrics
+        .lines()
+        .map(|l| serde_json::from_str::<serde_json::Value>(l).unwrap())
+        .filter(|v| v["phase"] == phase)
+        .map(|v| v["episode"].as_u64().unwrap())
+        .collect()
 }
