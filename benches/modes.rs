@@ -11,7 +11,11 @@
 //!
 //! `cargo bench -p fsrl --bench modes` (about 25 minutes on 2 cores). `FSRL_MODES_RL_EPISODES=N`
 //! shortens the RL phase (and the ε decay to 2/5 of it) for a quick look; `FSRL_MODES_ACTORS`
-//! sets the actors of the distributed run (default 2).
+//! sets the actors of the distributed run (default 2); `FSRL_MODES_DIST_CONFIG=FILE` gives the
+//! distributed run a config of its own (Experiment 18: `configs/experiments/adaptive-local.toml`,
+//! the adaptive replay ratio, which `--single-process` refuses; with `FSRL_MODES_RL_EPISODES` the
+//! file must shorten its RL phase itself); `FSRL_MODES_OUT=DIR` keeps both run directories in
+//! `DIR/{single,distributed}/fsrl-env1-invisible-s0` instead of a temporary directory.
 
 use std::path::Path;
 use std::process::Command;
@@ -47,12 +51,15 @@ fn main() {
     if std::env::args().any(|a| a == "--list") {
         return;
     }
-    let dir = tempfile::tempdir().unwrap();
+    let tmp = tempfile::tempdir().unwrap();
+    let kept = std::env::var_os("FSRL_MODES_OUT").map(std::path::PathBuf::from);
+    let dir = kept.as_deref().unwrap_or(tmp.path());
+    let dist_config = std::env::var_os("FSRL_MODES_DIST_CONFIG").map(std::path::PathBuf::from);
     let config = std::env::var("FSRL_MODES_RL_EPISODES")
         .ok()
         .and_then(|v| v.parse::<u64>().ok())
         .map(|n| {
-            let p = dir.path().join("short.toml");
+            let p = dir.join("short.toml");
             std::fs::write(
                 &p,
                 format!(
@@ -79,10 +86,10 @@ fn main() {
             .map_or(String::new(), |_| " (RL shortened)".into()),
         load()
     );
-    let single_dir = dir.path().join("single").join("fsrl-env1-invisible-s0");
+    let single_dir = dir.join("single").join("fsrl-env1-invisible-s0");
     let (single_wall, single) = run(&["--single-process"], &single_dir, config.as_deref());
     if config.is_none() {
-        let exported = dir.path().join("single.fsrlm");
+        let exported = dir.join("single.fsrlm");
         let o = Command::new(env!("CARGO_BIN_EXE_fsrl"))
             .arg("export-model")
             .arg(&single_dir)
@@ -103,13 +110,14 @@ fn main() {
     println!("load average after the single-process run: {}", load());
     let (dist_wall, dist) = run(
         &["--actors", &actors],
-        &dir.path()
-            .join("distributed")
-            .join("fsrl-env1-invisible-s0"),
-        config.as_deref(),
+        &dir.join("distributed").join("fsrl-env1-invisible-s0"),
+        dist_config.as_deref().or(config.as_deref()),
     );
     println!("load average after the distributed run: {}", load());
     let f = |v: &serde_json::Value, k: &str| v.get(k).and_then(|x| x.as_f64()).unwrap_or(f64::NAN);
+    if let Some(c) = &dist_config {
+        println!("distributed run's config: {}", c.display());
+    }
     println!("| part (s) | single-process | distributed ({actors} actors) |");
     println!("|---|---|---|");
     for k in [
