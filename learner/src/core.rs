@@ -16,6 +16,19 @@ use sim::Outcome;
 
 use crate::replay::{Batch, Replay, Transition};
 
+/// What [`LearnerCore::imitation_steps`] reports.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum ImitationStep {
+    /// A batch of epoch `epoch` (from 0) was fitted: `done` of `batches`.
+    Batch {
+        epoch: u32,
+        done: usize,
+        batches: usize,
+    },
+    /// Epoch `epoch` (from 0) ended with mean loss `loss`.
+    Epoch { epoch: u32, loss: f32 },
+}
+
 /// Why the learner refused something.
 #[derive(Debug, thiserror::Error)]
 pub enum LearnerError {
@@ -433,24 +446,54 @@ impl LearnerCore {
         epochs: u32,
         mut progress: impl FnMut(u32, f32),
     ) -> Result<f32, LearnerError> {
+        let last = self.imitation_steps(epochs, |step| {
+            if let ImitationStep::Epoch { epoch, loss } = step {
+                progress(epoch, loss);
+            }
+            true
+        })?;
+        Ok(last.unwrap_or(f32::NAN))
+    }
+
+    /// [`LearnerCore::imitation`] that reports every batch as well as every epoch and stops
+    /// when `step` returns `false` (after a batch or an epoch; the epoch is then left
+    /// unfinished and `Ok(None)` returned). An epoch of a long warm start takes seconds to
+    /// minutes: the learner process drains its transitions between batches, and a stop request
+    /// is seen within one batch. The draws and updates are those of [`LearnerCore::imitation`].
+    pub fn imitation_steps(
+        &mut self,
+        epochs: u32,
+        mut step: impl FnMut(ImitationStep) -> bool,
+    ) -> Result<Option<f32>, LearnerError> {
         let bs = self.train.imitation.batch_size;
         let mut order: Vec<usize> = (0..self.replay.len()).collect();
+        let batches = order.len().div_ceil(bs.max(1));
         let mut last = f32::NAN;
         for epoch in 0..epochs {
             order.shuffle(&mut self.rng);
             let (mut sum, mut n) = (0f64, 0usize);
-            for chunk in order.chunks(bs) {
+            for (k, chunk) in order.chunks(bs).enumerate() {
                 self.replay.gather(chunk.iter().copied(), &mut self.batch);
                 if let Some(loss) = self.fit_or_skip(chunk.len(), true)? {
                     sum += loss as f64;
                     n += 1;
                 }
+                let at = ImitationStep::Batch {
+                    epoch,
+                    done: k + 1,
+                    batches,
+                };
+                if !step(at) {
+                    return Ok(None);
+                }
             }
             last = (sum / n.max(1) as f64) as f32;
             self.counters.policy_version += 1;
-            progress(epoch, last);
+            if !step(ImitationStep::Epoch { epoch, loss: last }) {
+                return Ok(None);
+            }
         }
-        Ok(last)
+        Ok(Some(last))
     }
 
     /// Mean squared error of the online network against the Monte-Carlo returns of everything

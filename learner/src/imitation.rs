@@ -7,7 +7,7 @@ use policy::method::RunSpec;
 use policy::rollout::{episode_seed, rollout, Behaviour};
 use sim::Env;
 
-use crate::core::{LearnerCore, LearnerError};
+use crate::core::{ImitationStep, LearnerCore, LearnerError};
 
 /// Episode-seed stream of the demonstrations.
 pub const DEMO_STREAM: u64 = 0;
@@ -26,6 +26,14 @@ pub enum ImitationProgress {
         target_mean: f64,
         target_var: f64,
     },
+    /// A batch of an imitation epoch was fitted (epoch `epoch` from 0; `done` of `batches`).
+    /// Sent after every batch, so whoever watches can drain queues and see a stop request
+    /// within one batch however long an epoch is.
+    Batch {
+        epoch: u32,
+        done: usize,
+        batches: usize,
+    },
     Epoch {
         done: u32,
         total: u32,
@@ -34,7 +42,8 @@ pub enum ImitationProgress {
 }
 
 /// Runs demonstrations and imitation epochs, then switches `core` to RL. Returns `Ok(false)`
-/// if `stop` was raised (nothing is kept: demonstrations are cheap to redo).
+/// if `stop` was raised (seen after each demonstration and each batch; nothing is kept: the
+/// warm start is redone on the next start).
 pub fn run(
     core: &mut LearnerCore,
     spec: &RunSpec,
@@ -75,13 +84,28 @@ pub fn run(
         target_var,
     });
     let total = il.epochs;
-    core.imitation(total, |epoch, loss| {
-        progress(ImitationProgress::Epoch {
-            done: epoch + 1,
-            total,
-            loss,
-        })
+    let finished = core.imitation_steps(total, |step| {
+        progress(match step {
+            ImitationStep::Batch {
+                epoch,
+                done,
+                batches,
+            } => ImitationProgress::Batch {
+                epoch,
+                done,
+                batches,
+            },
+            ImitationStep::Epoch { epoch, loss } => ImitationProgress::Epoch {
+                done: epoch + 1,
+                total,
+                loss,
+            },
+        });
+        !stop.load(Ordering::SeqCst)
     })?;
+    if finished.is_none() {
+        return Ok(false);
+    }
     core.start_rl()?;
     Ok(true)
 }

@@ -924,10 +924,19 @@ pub fn run_with_probe(
         // process).
         let mut log = crate::runlog::ImitationLog::default();
         let (wall0, start) = (l.wall0, l.start);
+        // What the metrics tick shows: the newest demonstration count or finished epoch.
+        #[derive(Clone, Copy)]
+        enum Shown {
+            Demo(u64, u64),
+            Epoch(u32, u32, f32),
+        }
+        let mut shown = Shown::Demo(0, spec.train.imitation.episodes);
         let finished = imitation::run(&mut l.core, spec, stop, |p| {
             log.observe(&p, (wall0 + start.elapsed()).as_secs_f64());
             // Nobody should send episodes now (actors wait for the training phase): drain and
-            // count, so nothing piles up in the subscriber's queue during imitation.
+            // count, so nothing piles up in the subscriber's queue during imitation. Progress
+            // comes after every demonstration and every batch, so a long epoch cannot leave the
+            // queue (and the router's link to this process) full.
             while let Ok(Some(msg)) = subscriber.try_recv() {
                 refused += 1;
                 warn_sometimes(
@@ -939,16 +948,23 @@ pub fn run_with_probe(
                     ),
                 );
             }
+            match p {
+                ImitationProgress::Demo { done, total } => shown = Shown::Demo(done, total),
+                ImitationProgress::DemosDone { .. } => {}
+                ImitationProgress::Batch { .. } => {}
+                ImitationProgress::Epoch { done, total, loss } => {
+                    shown = Shown::Epoch(done, total, loss)
+                }
+            }
             if last.elapsed() >= opts.metrics_interval {
                 last = Instant::now();
                 let mut m = Metrics::default();
-                match p {
-                    ImitationProgress::Demo { done, total } => {
+                match shown {
+                    Shown::Demo(done, total) => {
                         m.values.insert("demo_episodes".into(), done as f64);
                         m.values.insert("demo_target".into(), total as f64);
                     }
-                    ImitationProgress::DemosDone { .. } => {}
-                    ImitationProgress::Epoch { done, total, loss } => {
+                    Shown::Epoch(done, total, loss) => {
                         m.values.insert("imitation_epoch".into(), done as f64);
                         m.values.insert("imitation_epochs".into(), total as f64);
                         m.values.insert("loss".into(), loss as f64);

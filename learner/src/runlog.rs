@@ -57,7 +57,7 @@ impl ImitationLog {
             ImitationProgress::Epoch { done, loss, .. } => {
                 self.epochs.push((done - 1, loss, wall_s))
             }
-            ImitationProgress::Demo { .. } => {}
+            ImitationProgress::Demo { .. } | ImitationProgress::Batch { .. } => {}
         }
     }
 

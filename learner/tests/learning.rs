@@ -321,3 +321,90 @@ fn cached_value_targets_equal_fresh_ones_from_the_target_network() {
     // And the online network has moved away from the target since the refresh.
     assert_ne!(core.online().params(), core.trainer().target().params());
 }
+
+/// The warm start reports every batch and stops within one: an epoch of the paper's schedule
+/// takes tens of seconds, and the learner process drains its transitions (a flood during
+/// imitation cannot fill its queue) and sees Ctrl-C on each report. Reporting changes nothing:
+/// the losses and weights are `imitation`'s.
+#[test]
+fn imitation_reports_every_batch_and_stops_within_one() {
+    use learner::core::ImitationStep;
+    let (mut a, _) = imitated(Method::Sarl, 20, 0);
+    let (mut b, _) = imitated(Method::Sarl, 20, 0);
+    let batches = a
+        .replay()
+        .len()
+        .div_ceil(TrainConfig::default().imitation.batch_size);
+    assert!(batches >= 3, "{batches} batches");
+    let mut steps = Vec::new();
+    let last = a
+        .imitation_steps(2, |s| {
+            steps.push(s);
+            true
+        })
+        .unwrap();
+    let plain = b.imitation(2, |_, _| {}).unwrap();
+    assert_eq!(
+        last,
+        Some(plain),
+        "the same draws and updates as imitation()"
+    );
+    assert_eq!(a.imitation_loss().unwrap(), b.imitation_loss().unwrap());
+    assert_eq!(steps.len(), 2 * batches + 2, "{steps:?}");
+    for (epoch, chunk) in steps.chunks(batches + 1).enumerate() {
+        for (k, s) in chunk[..batches].iter().enumerate() {
+            assert_eq!(
+                *s,
+                ImitationStep::Batch {
+                    epoch: epoch as u32,
+                    done: k + 1,
+                    batches
+                }
+            );
+        }
+        assert!(
+            matches!(chunk[batches], ImitationStep::Epoch { epoch: e, .. } if e == epoch as u32)
+        );
+    }
+
+    // A stop after the third batch of the first epoch: nothing more is fitted, no epoch counted.
+    let (mut c, _) = imitated(Method::Sarl, 20, 0);
+    let version = c.counters().policy_version;
+    let mut seen = 0;
+    let stopped = c
+        .imitation_steps(2, |_| {
+            seen += 1;
+            seen < 3
+        })
+        .unwrap();
+    assert_eq!((stopped, seen), (None, 3));
+    assert_eq!(c.counters().policy_version, version);
+
+    // Through the warm start the processes run: a stop raised during the first epoch's batches
+    // ends it there, and the core stays in imitation (the next start redoes the warm start).
+    let mut train = TrainConfig::default();
+    train.imitation.episodes = 20;
+    train.imitation.epochs = 50;
+    let spec = policy::method::RunSpec {
+        method: Method::Sarl,
+        setting: setting(),
+        sim: SimConfig::default(),
+        train: train.clone(),
+        seed: 7,
+    };
+    let mut d = LearnerCore::new(Method::Sarl, train, 10, 0.25, 7).unwrap();
+    let stop = std::sync::atomic::AtomicBool::new(false);
+    let mut reports = Vec::new();
+    let finished = learner::imitation::run(&mut d, &spec, &stop, |p| {
+        if let learner::imitation::ImitationProgress::Batch { epoch, done, .. } = p {
+            reports.push((epoch, done));
+            if done == 2 {
+                stop.store(true, std::sync::atomic::Ordering::SeqCst);
+            }
+        }
+    })
+    .unwrap();
+    assert!(!finished);
+    assert_eq!(reports, vec![(0, 1), (0, 2)]);
+    assert!(!d.counters().imitation_done);
+}

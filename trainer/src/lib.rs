@@ -174,7 +174,7 @@ pub fn run(
                 ImitationProgress::Epoch { done, total, loss } => {
                     progress.imitation_epoch(done, total, loss)
                 }
-                ImitationProgress::DemosDone { .. } => {}
+                ImitationProgress::DemosDone { .. } | ImitationProgress::Batch { .. } => {}
             }
         })?;
         if !finished {
