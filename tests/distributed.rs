@@ -3,40 +3,21 @@
 //! test), never from sleeping.
 
 mod hostile_support;
+mod net_support;
 mod shm_support;
 
 use std::collections::BTreeMap;
-use std::net::TcpListener;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
 use hostile_support::{forge, honest_batch};
+use net_support::{free_port, Children};
 use proto::{keys, Metrics, Role, RunId, SenderId};
 use shm_support::ShmSnapshot;
 use transport::{DataPlane, Subscriber, Transport, TransportConfig, ZenohConfig};
 
 const TIMEOUT: Duration = Duration::from_secs(180);
-
-fn free_port() -> u16 {
-    TcpListener::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port()
-}
-
-/// Child processes killed when the test ends, whatever happens.
-struct Procs(Vec<Child>);
-
-impl Drop for Procs {
-    fn drop(&mut self) {
-        for c in &mut self.0 {
-            let _ = c.kill();
-            let _ = c.wait();
-        }
-    }
-}
 
 struct Run {
     id: String,
@@ -190,7 +171,7 @@ fn wait_exit(c: &mut Child, what: &str, run: &Run) -> std::process::ExitStatus {
 /// Returns the run's id.
 fn two_process_run(plane: &'static str) -> String {
     let run = Run::new("two", plane, "");
-    let mut procs = Procs(vec![run.spawn("learner", &["--rl-episodes", "4"])]);
+    let mut procs = Children(vec![run.spawn("learner", &["--rl-episodes", "4"])]);
     // Watch the weights before the actor starts: its four RL episodes at 20 updates each take
     // well under a second, and a monitor that joined after them would see only the last version.
     let mon = run.monitor(0);
@@ -252,7 +233,7 @@ fn learner_and_actor_train_over_iceoryx2_and_clean_up_shared_memory() {
 #[test]
 fn a_killed_actor_is_noticed_and_a_new_one_joins() {
     let run = Run::new("kill-actor", "zenoh", "");
-    let mut procs = Procs(vec![run.spawn("learner", &["--rl-episodes", "100000"])]);
+    let mut procs = Children(vec![run.spawn("learner", &["--rl-episodes", "100000"])]);
     procs.0.push(run.spawn("actor", &["--id", "0"]));
     let mon = run.monitor(1);
     let mut w = Watch::new(&mon);
@@ -285,7 +266,7 @@ fn a_killed_learner_restarts_from_its_checkpoint_and_loses_no_acknowledged_episo
         "zenoh",
         "[train]\ncheckpoint_every_episodes = 0\n",
     );
-    let mut procs = Procs(vec![run.spawn("learner", &["--rl-episodes", "100000"])]);
+    let mut procs = Children(vec![run.spawn("learner", &["--rl-episodes", "100000"])]);
     procs.0.push(run.spawn("actor", &["--id", "0"]));
     let mon = run.monitor(2);
     let mut w = Watch::new(&mon);
@@ -325,7 +306,7 @@ fn a_killed_learner_restarts_from_its_checkpoint_and_loses_no_acknowledged_episo
 #[test]
 fn garbage_on_the_transitions_key_is_rejected_and_counted() {
     let run = Run::new("garbage", "zenoh", "");
-    let mut procs = Procs(vec![run.spawn("learner", &["--rl-episodes", "100000"])]);
+    let mut procs = Children(vec![run.spawn("learner", &["--rl-episodes", "100000"])]);
     procs.0.push(run.spawn("actor", &["--id", "0"]));
     let mon = run.monitor(3);
     let mut w = Watch::new(&mon);
@@ -406,7 +387,7 @@ fn the_evaluator_reports_a_checkpoint_on_all_six_settings() {
 #[test]
 fn live_metrics_are_readable_by_fsrl_watch_and_by_python() {
     let run = Run::new("watch", "zenoh", "");
-    let mut procs = Procs(vec![run.spawn("learner", &["--rl-episodes", "100000"])]);
+    let mut procs = Children(vec![run.spawn("learner", &["--rl-episodes", "100000"])]);
     procs.0.push(run.spawn("actor", &["--id", "0"]));
     let mon = run.monitor(4);
     let mut w = Watch::new(&mon);
@@ -602,7 +583,7 @@ fn hostile_but_well_formed_episodes_neither_stop_nor_poison_the_learner() {
             .replace("episodes = 6\nepochs = 1", "episodes = 30\nepochs = 30"),
     )
     .unwrap();
-    let mut procs = Procs(vec![run.spawn("learner", &["--rl-episodes", "25"])]);
+    let mut procs = Children(vec![run.spawn("learner", &["--rl-episodes", "25"])]);
     let mon = run.monitor(4);
     let mut w = Watch::new(&mon);
     let evil = {

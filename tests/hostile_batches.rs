@@ -13,15 +13,16 @@
 
 mod hostile_support;
 mod multihost_support;
+mod net_support;
 
 use std::collections::BTreeMap;
-use std::net::TcpListener;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 use hostile_support::{forge, honest_batch, huge_batch};
 use multihost_support::{self as mh, adapt_actor_config, adapt_deploy_config, table, Procs};
+use net_support::{free_port, read};
 use proto::{keys, Metrics, Role, RunId, SenderId};
 use transport::{Subscriber, Transport, TransportConfig, ZenohAuth, ZenohConfig, ZenohTls};
 
@@ -38,18 +39,6 @@ const RL_EPISODES: u64 = 25;
 /// The index every episode sent during imitation carries: should one arrive after the warm
 /// start, it is not actor 0's first (0) and is refused as out of order, creating no state.
 const IMITATION_EPISODE: u64 = 7;
-
-fn free_port() -> u16 {
-    TcpListener::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port()
-}
-
-fn read(p: &Path) -> String {
-    std::fs::read_to_string(p).unwrap_or_default()
-}
 
 /// A client of the router at `port` as `user` (its password and the CA from the test CA's
 /// files in `secrets`), sending as `sender`.

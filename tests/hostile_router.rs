@@ -11,14 +11,15 @@
 //! can fail.
 
 mod multihost_support;
+mod net_support;
 
 use std::any::Any;
-use std::net::TcpListener;
-use std::process::{Child, Command, Stdio};
+use std::process::{Command, Stdio};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use multihost_support as mh;
+use net_support::{free_port, Reaped};
 use zenoh::query::{ConsolidationMode, QueryTarget};
 use zenoh::sample::SampleKind;
 use zenoh::{Session, Wait};
@@ -31,24 +32,6 @@ const LEGIT: &[u8] = b"legit";
 const HOSTILE: &[u8] = b"hostile";
 /// The liveliness instance of the hostile tokens.
 const HOSTILE_INSTANCE: &str = "00000000deadbeef";
-
-fn free_port() -> u16 {
-    TcpListener::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port()
-}
-
-/// The router process, killed and reaped on drop.
-struct Router(Child);
-
-impl Drop for Router {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
 
 /// What one watcher received: (watcher, key, kind, payload).
 type Log = Arc<Mutex<Vec<(String, String, SampleKind, Vec<u8>)>>>;
@@ -64,38 +47,7 @@ struct World {
 impl World {
     /// A client session of the router as `user` (its password from the test CA's files).
     fn session(&self, user: &str) -> Session {
-        let password = std::fs::read_to_string(self.secrets.join(format!("{user}.password")))
-            .unwrap()
-            .lines()
-            .next()
-            .unwrap()
-            .to_string();
-        let q = |s: &str| serde_json::to_string(s).unwrap();
-        let mut c = zenoh::Config::default();
-        for (k, v) in [
-            ("mode", q("client")),
-            (
-                "connect/endpoints",
-                format!("[{}]", q(&format!("tls/127.0.0.1:{}", self.port))),
-            ),
-            ("scouting/multicast/enabled", "false".into()),
-            (
-                "transport/link/tls/root_ca_certificate",
-                q(&self.secrets.join("certs/ca.crt").to_string_lossy()),
-            ),
-            ("transport/auth/usrpwd/user", q(user)),
-            ("transport/auth/usrpwd/password", q(&password)),
-        ] {
-            c.insert_json5(k, &v).unwrap_or_else(|e| panic!("{k}: {e}"));
-        }
-        let start = Instant::now();
-        loop {
-            match zenoh::open(c.clone()).wait() {
-                Ok(s) => return s,
-                Err(e) if start.elapsed() > PATIENCE => panic!("{user}: no session: {e}"),
-                Err(_) => std::thread::sleep(Duration::from_millis(100)),
-            }
-        }
+        net_support::router_session(&self.secrets, self.port, user, PATIENCE)
     }
 
     /// `who` subscribes to `key`, logging what arrives.
@@ -187,7 +139,7 @@ fn a_hostile_actor_reaches_no_one_through_the_live_router() {
     let listen = format!("listen/endpoints:[\"tls/127.0.0.1:{port}\"]");
     let args = mh::router_args_for_run(&secrets, &run, &[listen]);
     let log_file = std::fs::File::create(secrets.join("router.log")).unwrap();
-    let _router = Router(
+    let _router = Reaped(
         Command::new(env!("CARGO_BIN_EXE_fsrl"))
             .args(&args)
             .env("RUST_LOG", "info,zenoh=warn")

@@ -5,8 +5,8 @@
 //! the rest, so actor 1, started after the flood, is admitted, gets credits and trains.
 
 mod multihost_support;
+mod net_support;
 
-use std::net::TcpListener;
 use std::path::Path;
 use std::process::{Command, Stdio};
 use std::sync::atomic::{AtomicUsize, Ordering};
@@ -14,6 +14,7 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use multihost_support::{self as mh, adapt_actor_config, adapt_deploy_config, table, Procs};
+use net_support::{free_port, read};
 use zenoh::sample::SampleKind;
 use zenoh::{Session, Wait};
 
@@ -21,52 +22,9 @@ const PATIENCE: Duration = Duration::from_secs(120);
 /// More tokens than the learner's cap of actors (`proto::control::MAX_CREDIT_GRANTS`).
 const FLOOD: usize = 4200;
 
-fn free_port() -> u16 {
-    TcpListener::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port()
-}
-
-/// A raw zenoh client of the router as `user`, with its password from the test CA's files.
+/// A raw zenoh client of the router as `user`.
 fn session(secrets: &Path, port: u16, user: &str) -> Session {
-    let password = std::fs::read_to_string(secrets.join(format!("{user}.password")))
-        .unwrap()
-        .lines()
-        .next()
-        .unwrap()
-        .to_string();
-    let q = |s: &str| serde_json::to_string(s).unwrap();
-    let mut c = zenoh::Config::default();
-    for (k, v) in [
-        ("mode", q("client")),
-        (
-            "connect/endpoints",
-            format!("[{}]", q(&format!("tls/127.0.0.1:{port}"))),
-        ),
-        ("scouting/multicast/enabled", "false".into()),
-        (
-            "transport/link/tls/root_ca_certificate",
-            q(&secrets.join("certs/ca.crt").to_string_lossy()),
-        ),
-        ("transport/auth/usrpwd/user", q(user)),
-        ("transport/auth/usrpwd/password", q(&password)),
-    ] {
-        c.insert_json5(k, &v).unwrap_or_else(|e| panic!("{k}: {e}"));
-    }
-    let start = Instant::now();
-    loop {
-        match zenoh::open(c.clone()).wait() {
-            Ok(s) => return s,
-            Err(e) if start.elapsed() > PATIENCE => panic!("{user}: no session: {e}"),
-            Err(_) => std::thread::sleep(Duration::from_millis(100)),
-        }
-    }
-}
-
-fn read(p: &Path) -> String {
-    std::fs::read_to_string(p).unwrap_or_default()
+    net_support::router_session(secrets, port, user, PATIENCE)
 }
 
 fn wait_for(what: &str, logs: &dyn Fn() -> String, mut cond: impl FnMut() -> bool) {

@@ -14,14 +14,16 @@
 //! - safety: stale odometry, a dropped people topic, undecodable bytes and SIGTERM each lead to
 //!   a zero command.
 
+mod net_support;
+
 use std::io::{BufRead, BufReader};
-use std::net::TcpListener;
 use std::ops::Range;
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
+use std::process::{Command, Stdio};
 use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
+use net_support::{free_port, Reaped as Proc};
 use serve::msg::{
     self, Header, Odometry, People, Point, Pose, PoseStamped, Quaternion, Time, Twist,
 };
@@ -35,29 +37,11 @@ const FEW_SEEDS: Range<u64> = 1000..1010;
 /// `fsrl serve` deciding in lockstep with the stand-in (which waits for each command).
 const LOCKSTEP: [&str; 4] = ["--trigger", "odometry", "--stale-periods", "40"];
 
-fn free_port() -> u16 {
-    TcpListener::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port()
-}
-
 fn model_path() -> String {
     Path::new(env!("CARGO_MANIFEST_DIR"))
         .join(MODEL)
         .to_string_lossy()
         .into_owned()
-}
-
-/// A child killed when the test ends, whatever happens.
-struct Proc(Child);
-
-impl Drop for Proc {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
 }
 
 /// A closed loop's model, the setting it plays and the seeds.
