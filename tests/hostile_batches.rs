@@ -17,12 +17,11 @@ mod net_support;
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 use hostile_support::{forge, honest_batch, huge_batch};
-use multihost_support::{self as mh, adapt_actor_config, adapt_deploy_config, table, Procs};
-use net_support::{free_port, read};
+use multihost_support::{self as mh, adapt_actor_config, adapt_deploy_config, table};
+use net_support::read;
 use proto::{keys, Metrics, Role, RunId, SenderId};
 use transport::{Subscriber, Transport, TransportConfig, ZenohAuth, ZenohConfig, ZenohTls};
 
@@ -105,43 +104,16 @@ impl Watch {
 fn hostile_batches_with_an_actors_credentials_neither_stop_nor_poison_the_learner() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
-    mh::make_secrets(d, &[]).unwrap();
     let run = format!("hb{}", std::process::id());
-    let port = free_port();
-    let endpoint = format!("tls/127.0.0.1:{port}");
-    let fsrl = Path::new(env!("CARGO_BIN_EXE_fsrl"));
-    let mut procs = Procs::default();
-    let spawn = |procs: &mut Procs, name: &str, args: &[String]| {
-        let log = std::fs::File::create(d.join(format!("{name}.log"))).unwrap();
-        let child = Command::new(fsrl)
-            .args(args)
-            .env("RUST_LOG", "info,zenoh=warn")
-            .stdin(Stdio::null())
-            .stdout(log.try_clone().unwrap())
-            .stderr(log)
-            .spawn()
-            .unwrap();
-        procs.adopt(name, child);
-    };
-    let listen = format!("listen/endpoints:[\"{endpoint}\"]");
-    spawn(
-        &mut procs,
-        "router",
-        &mh::router_args_for_run(d, &run, &[listen]),
-    );
+    let mut router = mh::LoopbackRouter::start(d, &run, Path::new(env!("CARGO_BIN_EXE_fsrl")));
+    let port = router.port;
 
     // The deployed configs, pointed at this run and router. A longer warm start than the
     // others' (30 demonstrations, 30 epochs), so that the test can send during it.
     let configure = |t: &mut toml::Table| {
+        router.configure(t);
         let r = table(t, &["run"]);
-        r.insert("id".into(), run.clone().into());
-        r.insert("method".into(), "sarl".into());
         r.insert("setting".into(), hostile_support::SETTING.into());
-        let z = table(t, &["transport", "zenoh"]);
-        z.insert(
-            "connect".into(),
-            toml::Value::Array(vec![endpoint.clone().into()]),
-        );
         let tr = table(t, &["train"]);
         tr.insert("checkpoint_every_episodes".into(), 0.into());
         let i = table(t, &["train", "imitation"]);
@@ -163,20 +135,8 @@ fn hostile_batches_with_an_actors_credentials_neither_stop_nor_poison_the_learne
     });
     let actor1 = adapt_actor_config(1, d, "actor-1.toml", configure);
     let s = |p: &Path| p.to_string_lossy().into_owned();
-    let logs = || {
-        ["router", "learner", "actor-1"]
-            .iter()
-            .map(|n| {
-                let text = read(&d.join(format!("{n}.log")));
-                let tail: Vec<&str> = text.lines().rev().take(30).collect();
-                let tail: Vec<&str> = tail.into_iter().rev().collect();
-                format!("--- {n}.log (tail)\n{}", tail.join("\n"))
-            })
-            .collect::<Vec<_>>()
-            .join("\n")
-    };
-    spawn(
-        &mut procs,
+    let logs = || mh::log_tails(d, 30);
+    router.spawn(
         "learner",
         &["learner".into(), "--config".into(), s(&learner)],
     );
@@ -213,8 +173,7 @@ fn hostile_batches_with_an_actors_credentials_neither_stop_nor_poison_the_learne
     drop(huge);
 
     // The honest actor joins and trains.
-    spawn(
-        &mut procs,
+    router.spawn(
         "actor-1",
         &[
             "actor".into(),
@@ -308,7 +267,12 @@ fn hostile_batches_with_an_actors_credentials_neither_stop_nor_poison_the_learne
     // The run ends normally, with only actor 1's episodes in it.
     let deadline = Instant::now() + PATIENCE;
     let status = loop {
-        if let Some((_, status)) = procs.exited().into_iter().find(|(n, _)| n == "learner") {
+        if let Some((_, status)) = router
+            .procs
+            .exited()
+            .into_iter()
+            .find(|(n, _)| n == "learner")
+        {
             break status;
         }
         assert!(
@@ -339,5 +303,5 @@ fn hostile_batches_with_an_actors_credentials_neither_stop_nor_poison_the_learne
         (1..=2).contains(&lines),
         "{lines} log lines for {forged_headers} rejected headers"
     );
-    procs.kill_all();
+    router.procs.kill_all();
 }

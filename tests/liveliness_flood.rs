@@ -8,13 +8,12 @@ mod multihost_support;
 mod net_support;
 
 use std::path::Path;
-use std::process::{Command, Stdio};
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use multihost_support::{self as mh, adapt_actor_config, adapt_deploy_config, table, Procs};
-use net_support::{free_port, read};
+use multihost_support::{self as mh, adapt_actor_config, adapt_deploy_config, table};
+use net_support::read;
 use zenoh::sample::SampleKind;
 use zenoh::{Session, Wait};
 
@@ -43,40 +42,12 @@ fn wait_for(what: &str, logs: &dyn Fn() -> String, mut cond: impl FnMut() -> boo
 fn a_liveliness_flood_from_one_actor_does_not_lock_out_another() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
-    mh::make_secrets(d, &[]).unwrap();
     let run = format!("lf{}", std::process::id());
-    let port = free_port();
-    let endpoint = format!("tls/127.0.0.1:{port}");
-    let listen = format!("listen/endpoints:[\"{endpoint}\"]");
-    let fsrl = Path::new(env!("CARGO_BIN_EXE_fsrl"));
-    let mut procs = Procs::default();
-    let spawn = |procs: &mut Procs, name: &str, args: &[String]| {
-        let log = std::fs::File::create(d.join(format!("{name}.log"))).unwrap();
-        let child = Command::new(fsrl)
-            .args(args)
-            .env("RUST_LOG", "info,zenoh=warn")
-            .stdin(Stdio::null())
-            .stdout(log.try_clone().unwrap())
-            .stderr(log)
-            .spawn()
-            .unwrap();
-        procs.adopt(name, child);
-    };
-    spawn(
-        &mut procs,
-        "router",
-        &mh::router_args_for_run(d, &run, &[listen]),
-    );
+    let mut router = mh::LoopbackRouter::start(d, &run, Path::new(env!("CARGO_BIN_EXE_fsrl")));
+    let port = router.port;
 
     let configure = |t: &mut toml::Table| {
-        let r = table(t, &["run"]);
-        r.insert("id".into(), run.clone().into());
-        r.insert("method".into(), "sarl".into());
-        let z = table(t, &["transport", "zenoh"]);
-        z.insert(
-            "connect".into(),
-            toml::Value::Array(vec![endpoint.clone().into()]),
-        );
+        router.configure(t);
         let i = table(t, &["train", "imitation"]);
         i.insert("episodes".into(), 4.into());
         i.insert("epochs".into(), 1.into());
@@ -97,23 +68,11 @@ fn a_liveliness_flood_from_one_actor_does_not_lock_out_another() {
     });
     let actor1 = adapt_actor_config(1, d, "actor-1.toml", configure);
     let s = |p: &Path| p.to_string_lossy().into_owned();
-    spawn(
-        &mut procs,
+    router.spawn(
         "learner",
         &["learner".into(), "--config".into(), s(&learner)],
     );
-    let logs = || {
-        ["router", "learner", "actor-1"]
-            .iter()
-            .map(|n| {
-                let text = read(&d.join(format!("{n}.log")));
-                let tail: Vec<&str> = text.lines().rev().take(30).collect();
-                let tail: Vec<&str> = tail.into_iter().rev().collect();
-                format!("--- {n}.log (tail)\n{}", tail.join("\n"))
-            })
-            .collect::<Vec<_>>()
-            .join("\n")
-    };
+    let logs = || mh::log_tails(d, 30);
     let learner_log = || read(&d.join("learner.log"));
     wait_for("the learner's warm start", &logs, || {
         learner_log().contains("imitation done")
@@ -149,8 +108,7 @@ fn a_liveliness_flood_from_one_actor_does_not_lock_out_another() {
     });
 
     // Actor 1 joins after the flood and trains.
-    spawn(
-        &mut procs,
+    router.spawn(
         "actor-1",
         &[
             "actor".into(),
@@ -182,5 +140,5 @@ fn a_liveliness_flood_from_one_actor_does_not_lock_out_another() {
         logs()
     );
     drop(tokens);
-    procs.kill_all();
+    router.procs.kill_all();
 }

@@ -534,6 +534,69 @@ impl Drop for Procs {
     }
 }
 
+/// A real `fsrl router` on loopback (`tls/127.0.0.1`, no namespaces) with the deployed access
+/// control for run `run` and the test CA made in `dir`, for the tests that attack it with an
+/// actor's real credentials. Every process logs to `dir/<name>.log` and is killed on drop.
+pub struct LoopbackRouter {
+    pub dir: PathBuf,
+    pub run: String,
+    pub port: u16,
+    /// `tls/127.0.0.1:<port>`.
+    pub endpoint: String,
+    pub procs: Procs,
+    fsrl: PathBuf,
+}
+
+impl LoopbackRouter {
+    /// Makes the test CA in `dir` and starts the router (`fsrl` is the binary).
+    pub fn start(dir: &Path, run: &str, fsrl: &Path) -> Self {
+        make_secrets(dir, &[]).unwrap();
+        let port = std::net::TcpListener::bind("127.0.0.1:0")
+            .unwrap()
+            .local_addr()
+            .unwrap()
+            .port();
+        let endpoint = format!("tls/127.0.0.1:{port}");
+        let mut r = Self {
+            dir: dir.to_path_buf(),
+            run: run.to_string(),
+            port,
+            endpoint: endpoint.clone(),
+            procs: Procs::default(),
+            fsrl: fsrl.to_path_buf(),
+        };
+        let listen = format!("listen/endpoints:[\"{endpoint}\"]");
+        r.spawn("router", &router_args_for_run(dir, run, &[listen]));
+        r
+    }
+
+    /// Starts `fsrl ARGS` as `name` (`RUST_LOG=info,zenoh=warn`).
+    pub fn spawn(&mut self, name: &str, args: &[String]) {
+        let log = std::fs::File::create(self.dir.join(format!("{name}.log"))).unwrap();
+        let child = Command::new(&self.fsrl)
+            .args(args)
+            .env("RUST_LOG", "info,zenoh=warn")
+            .stdin(Stdio::null())
+            .stdout(log.try_clone().unwrap())
+            .stderr(log)
+            .spawn()
+            .unwrap_or_else(|e| panic!("cannot start {name}: {e}"));
+        self.procs.adopt(name, child);
+    }
+
+    /// Points a deployed config at this run (SARL) and this router.
+    pub fn configure(&self, t: &mut toml::Table) {
+        let r = table(t, &["run"]);
+        r.insert("id".into(), self.run.clone().into());
+        r.insert("method".into(), "sarl".into());
+        let z = table(t, &["transport", "zenoh"]);
+        z.insert(
+            "connect".into(),
+            toml::Value::Array(vec![self.endpoint.clone().into()]),
+        );
+    }
+}
+
 /// Everything the observer helper reported so far.
 #[derive(Debug, Default)]
 pub struct Seen {
