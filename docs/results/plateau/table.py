@@ -41,10 +41,11 @@ def mean_sd(xs):
 
 
 print()
-print("Over the seeds whose runs both reached the plateau (a censored run is left out):")
+print("Time: over the seeds in which the arm reached the plateau; x fixed: over the seeds in which")
+print("both it and the fixed arm did (a censored run is left out of both).")
 print()
-print("| arm | seeds | time to the plateau, mean ± sd (s) | x fixed, mean ± sd (per seed) |")
-print("|---|---|---|---|")
+print("| arm | seeds | time to the plateau, mean ± sd (s) | seeds | x fixed, mean ± sd (per seed) |")
+print("|---|---|---|---|---|")
 for arm in arms:
     ts, rs = [], []
     for s in seeds:
@@ -57,4 +58,4 @@ for arm in arms:
     if ts:
         m, sd = mean_sd(ts)
         rm, rsd = mean_sd(rs) if rs else (float("nan"), 0.0)
-        print(f"| {arm} | {len(ts)} | {m:.0f} ± {sd:.0f} | {rm:.2f} ± {rsd:.2f} |")
+        print(f"| {arm} | {len(ts)} | {m:.0f} ± {sd:.0f} | {len(rs)} | {rm:.2f} ± {rsd:.2f} |")
