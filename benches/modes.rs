@@ -11,10 +11,11 @@
 //!
 //! `cargo bench -p fsrl --bench modes` (about 25 minutes on 2 cores). `FSRL_MODES_RL_EPISODES=N`
 //! shortens the RL phase (and the ε decay to 2/5 of it) for a quick look; `FSRL_MODES_ACTORS`
-//! sets the actors of the distributed run (default 2); `FSRL_MODES_DIST_CONFIG=FILE` gives the
-//! distributed run a config of its own (Experiment 18: `configs/experiments/adaptive-local.toml`,
-//! the adaptive replay ratio, which `--single-process` refuses; with `FSRL_MODES_RL_EPISODES` the
-//! file must shorten its RL phase itself); `FSRL_MODES_OUT=DIR` keeps both run directories in
+//! sets the actors of the distributed run (default 2), which runs `fsrl train`'s default, the
+//! adaptive replay ratio (4 to 20 updates per episode, Experiment 18); `FSRL_MODES_REPLAY_RATIO`
+//! is its `--replay-ratio` (`fixed`: the 20 per episode of the single process, as before
+//! Experiment 18); `FSRL_MODES_DIST_CONFIG=FILE` gives the distributed run a config of its own
+//! (with `FSRL_MODES_RL_EPISODES` the file must shorten its RL phase itself); `FSRL_MODES_OUT=DIR` keeps both run directories in
 //! `DIR/{single,distributed}/fsrl-env1-invisible-s0` instead of a temporary directory.
 
 use std::path::Path;
@@ -108,8 +109,13 @@ fn main() {
         );
     }
     println!("load average after the single-process run: {}", load());
+    let ratio = std::env::var("FSRL_MODES_REPLAY_RATIO").ok();
+    let mut dist_args = vec!["--actors", actors.as_str()];
+    if let Some(r) = &ratio {
+        dist_args.extend(["--replay-ratio", r.as_str()]);
+    }
     let (dist_wall, dist) = run(
-        &["--actors", &actors],
+        &dist_args,
         &dir.join("distributed").join("fsrl-env1-invisible-s0"),
         dist_config.as_deref().or(config.as_deref()),
     );
@@ -118,6 +124,11 @@ fn main() {
     if let Some(c) = &dist_config {
         println!("distributed run's config: {}", c.display());
     }
+    println!(
+        "distributed run's replay ratio: {}",
+        dist.get("replay_ratio")
+            .map_or("?".into(), |v| v.to_string())
+    );
     println!("| part (s) | single-process | distributed ({actors} actors) |");
     println!("|---|---|---|");
     for k in [

@@ -43,6 +43,10 @@ pub struct ReproduceArgs {
     /// Actor processes of each distributed run
     #[arg(long, default_value_t = 2)]
     pub actors: u32,
+    /// Updates per RL episode of each distributed run (`fsrl train --replay-ratio`): `MIN,MAX`
+    /// or `fixed` [default: the config's train.rl.replay_ratio, else 4,20]
+    #[arg(long)]
+    pub replay_ratio: Option<String>,
     /// Train only shard I of N of the grid (0 ≤ I < N; run k of the grid, in its order, belongs
     /// to shard k mod N), for a cluster scheduler's array job. Without it: from
     /// SLURM_ARRAY_TASK_ID − SLURM_ARRAY_TASK_MIN of SLURM_ARRAY_TASK_COUNT, or Kubernetes'
@@ -98,6 +102,15 @@ pub fn grid(args: &ReproduceArgs) -> anyhow::Result<Grid> {
     let mut problems = Vec::new();
     if args.actors == 0 {
         problems.push("--actors must be at least 1".to_string());
+    }
+    if let Some(r) = &args.replay_ratio {
+        match policy::method::ReplayRatio::parse_arg(r) {
+            Err(e) => problems.push(e),
+            Ok(Some(_)) if args.single_process => problems.push(
+                "--replay-ratio MIN,MAX needs distributed runs; --single-process trains the fixed schedule".to_string(),
+            ),
+            Ok(_) => {}
+        }
     }
     let mut methods = Vec::new();
     for name in &args.methods {
@@ -385,7 +398,11 @@ pub fn run(args: ReproduceArgs) -> anyhow::Result<()> {
             let mode = if args.single_process {
                 os(&[&"--single-process"])
             } else {
-                os(&[&"--actors", &args.actors.to_string()])
+                let mut m = os(&[&"--actors", &args.actors.to_string()]);
+                if let Some(r) = &args.replay_ratio {
+                    m.extend(os(&[&"--replay-ratio", r]));
+                }
+                m
             };
             let mut a = [os(&[&"train"]), mode, config.clone()].concat();
             a.extend(os(&[
@@ -496,6 +513,7 @@ mod tests {
             config: Some(config.to_path_buf()),
             single_process: false,
             actors: 2,
+            replay_ratio: None,
             shard: None,
             methods: vec!["sarl".into()],
             settings: Vec::new(),

@@ -12,7 +12,7 @@ use anyhow::Context;
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use learner::checkpoint;
 use learner::LearnerCore;
-use policy::method::{RunSpec, Select};
+use policy::method::{ReplayRatio, RunSpec, Select};
 use transport::DataPlane;
 
 use crate::config::{run_checkpoint, Resolved, RunOverrides};
@@ -47,6 +47,12 @@ pub struct TrainArgs {
     /// Skip the evaluator process (multi-process mode)
     #[arg(long)]
     pub no_evaluator: bool,
+    /// Updates per RL episode of a distributed run: `MIN,MAX` (the adaptive replay ratio: the
+    /// learner trains flat out, taking episodes while it has done between MIN and MAX updates
+    /// per episode) or `fixed` (train.rl.batches_per_episode each) [default: the config's
+    /// train.rl.replay_ratio, else 4,20; a resumed run keeps its own; --single-process: fixed]
+    #[arg(long)]
+    pub replay_ratio: Option<String>,
 }
 
 fn resolve(args: &TrainArgs) -> anyhow::Result<Resolved> {
@@ -217,6 +223,11 @@ fn distributed(args: TrainArgs) -> anyhow::Result<()> {
     if !problems.is_empty() {
         return Err(sim::ConfigError { problems }.into());
     }
+    let out = args
+        .out
+        .clone()
+        .unwrap_or_else(|| resolved.default_run_dir());
+    resolved.file.train.rl.replay_ratio = distributed_replay_ratio(&args, &resolved, &out)?;
     let select = &mut resolved.file.train.select;
     if args.no_evaluator && *select != Select::Last {
         // Without the evaluator nothing is validated and no snapshot is kept: the run's policy
@@ -227,10 +238,6 @@ fn distributed(args: TrainArgs) -> anyhow::Result<()> {
         );
         *select = Select::Last;
     }
-    let out = args
-        .out
-        .clone()
-        .unwrap_or_else(|| resolved.default_run_dir());
     let launch = launch::local::Launch {
         exe: std::env::current_exe().context("cannot find the fsrl executable")?,
         resolved,
@@ -242,6 +249,36 @@ fn distributed(args: TrainArgs) -> anyhow::Result<()> {
         eval_episodes: args.eval_episodes,
     };
     launch::local::run(launch, &stop)
+}
+
+/// The replay ratio of a distributed run: `--replay-ratio` if given; on `--resume`, the one the
+/// run was started with (its `config.toml`), so that a run resumes to its own schedule; else
+/// the config's, else [`ReplayRatio::LOCAL_DEFAULT`] (Experiment 18: level with the shipped
+/// models in about half the time of one process).
+fn distributed_replay_ratio(
+    args: &TrainArgs,
+    resolved: &Resolved,
+    out: &std::path::Path,
+) -> anyhow::Result<Option<ReplayRatio>> {
+    if let Some(s) = &args.replay_ratio {
+        return ReplayRatio::parse_arg(s).map_err(anyhow::Error::msg);
+    }
+    let started = out.join("config.toml");
+    if args.resume && started.exists() {
+        let file = crate::config::FileConfig::load(Some(&started)).with_context(|| {
+            format!(
+                "{} (the run's own config) is not readable",
+                started.display()
+            )
+        })?;
+        return Ok(file.train.rl.replay_ratio);
+    }
+    Ok(resolved
+        .file
+        .train
+        .rl
+        .replay_ratio
+        .or(Some(ReplayRatio::LOCAL_DEFAULT)))
 }
 
 pub fn run(args: TrainArgs) -> anyhow::Result<()> {
@@ -261,6 +298,14 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
         .context("cannot install the Ctrl-C handler")?;
     }
     let resolved = resolve(&args)?;
+    if let Some(s) = &args.replay_ratio {
+        if ReplayRatio::parse_arg(s)
+            .map_err(anyhow::Error::msg)?
+            .is_some()
+        {
+            return Err(trainer::TrainerError::AdaptiveNeedsProcesses.into());
+        }
+    }
     if resolved.file.train.rl.replay_ratio.is_some() {
         // Before anything is written: the lockstep schedule has one round per episode.
         return Err(trainer::TrainerError::AdaptiveNeedsProcesses.into());
@@ -366,4 +411,78 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
         start.elapsed().as_secs_f64()
     );
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::Parser;
+
+    #[derive(Parser)]
+    struct Cli {
+        #[command(flatten)]
+        train: TrainArgs,
+    }
+
+    fn args(extra: &[&str]) -> TrainArgs {
+        Cli::parse_from(std::iter::once("fsrl-train").chain(extra.iter().copied())).train
+    }
+
+    #[test]
+    fn a_distributed_runs_replay_ratio_comes_from_the_flag_its_own_config_the_file_or_the_default()
+    {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("run");
+        let o = out.to_str().unwrap();
+        let ratio = |a: &TrainArgs| distributed_replay_ratio(a, &resolve(a).unwrap(), &out);
+        let bounds = |min, max| Some(ReplayRatio { min, max });
+
+        assert_eq!(
+            ratio(&args(&["--out", o])).unwrap(),
+            Some(ReplayRatio::LOCAL_DEFAULT)
+        );
+        let cfg = dir.path().join("c.toml");
+        std::fs::write(&cfg, "[train.rl]\nreplay_ratio = { min = 2, max = 9 }\n").unwrap();
+        let c = cfg.to_str().unwrap();
+        assert_eq!(
+            ratio(&args(&["--out", o, "--config", c])).unwrap(),
+            bounds(2.0, 9.0)
+        );
+        assert_eq!(
+            ratio(&args(&[
+                "--out",
+                o,
+                "--config",
+                c,
+                "--replay-ratio",
+                "fixed"
+            ]))
+            .unwrap(),
+            None
+        );
+        assert_eq!(
+            ratio(&args(&["--out", o, "--replay-ratio", "5,6"])).unwrap(),
+            bounds(5.0, 6.0)
+        );
+        let e = ratio(&args(&["--out", o, "--replay-ratio", "5"])).unwrap_err();
+        assert!(format!("{e:#}").contains("MIN,MAX"), "{e:#}");
+
+        // A run started with the fixed schedule resumes with it, whatever today's default.
+        std::fs::create_dir_all(&out).unwrap();
+        let started = resolve(&args(&["--out", o])).unwrap();
+        assert_eq!(started.file.train.rl.replay_ratio, None);
+        std::fs::write(
+            out.join("config.toml"),
+            toml::to_string(&started.file).unwrap(),
+        )
+        .unwrap();
+        assert_eq!(ratio(&args(&["--out", o, "--resume"])).unwrap(), None);
+        assert_eq!(
+            ratio(&args(&["--out", o, "--resume", "--replay-ratio", "4,20"])).unwrap(),
+            Some(ReplayRatio::LOCAL_DEFAULT)
+        );
+        std::fs::write(out.join("config.toml"), "[train.rl]\nnot_a_key = 1\n").unwrap();
+        let e = ratio(&args(&["--out", o, "--resume"])).unwrap_err();
+        assert!(format!("{e:#}").contains("the run's own config"), "{e:#}");
+    }
 }

@@ -388,7 +388,15 @@ fn best_validation_selection_keeps_snapshots_and_the_run_uses_the_best() {
     let run: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(dist.join("run.json")).unwrap()).unwrap();
     assert_eq!(run["mode"], "distributed", "{run}");
-    assert_eq!(run["learner_updates_per_episode"], 20.0, "{run}");
+    // The default of a distributed `fsrl train`: the adaptive replay ratio, 4 to 20 updates per
+    // episode (Experiment 18).
+    assert_eq!(
+        run["replay_ratio"],
+        serde_json::json!({"min": 4.0, "max": 20.0}),
+        "{run}"
+    );
+    let realised = run["learner_updates_per_episode"].as_f64().unwrap();
+    assert!((4.0..=20.0).contains(&realised), "{run}");
     // export-model works on the distributed run as on the single-process one.
     let o = fsrl()
         .arg("export-model")

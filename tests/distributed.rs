@@ -701,7 +701,7 @@ fn two_actors_share_the_learner_fairly_over_iceoryx2() {
 #[test]
 fn the_adaptive_mode_keeps_its_replay_ratio_within_bounds() {
     let dir = tempfile::tempdir().unwrap();
-    let ratio = |name: &str, min: f64, max: f64, evaluator: bool| {
+    let ratio = |name: &str, min: f64, max: f64, evaluator: bool, extra: &[&str]| {
         let out = dir.path().join(name);
         let config = dir.path().join(format!("{name}.toml"));
         std::fs::write(
@@ -723,6 +723,7 @@ fn the_adaptive_mode_keeps_its_replay_ratio_within_bounds() {
         if !evaluator {
             cmd.arg("--no-evaluator");
         }
+        cmd.args(extra);
         let o = cmd.output().unwrap();
         let stderr = String::from_utf8_lossy(&o.stderr);
         assert!(o.status.success(), "{stderr}");
@@ -731,13 +732,16 @@ fn the_adaptive_mode_keeps_its_replay_ratio_within_bounds() {
         let run: serde_json::Value =
             serde_json::from_str(&std::fs::read_to_string(out.join("run.json")).unwrap()).unwrap();
         let realised = run["learner_updates_per_episode"].as_f64().unwrap();
-        assert!(
-            realised >= min - 1e-9 && realised <= max + 1.0 / 40.0,
-            "{name}: {realised} updates per episode, bounds [{min}, {max}]"
-        );
+        if extra.is_empty() {
+            assert!(
+                realised >= min - 1e-9 && realised <= max + 1.0 / 40.0,
+                "{name}: {realised} updates per episode, bounds [{min}, {max}]"
+            );
+            assert_eq!(run["replay_ratio"]["min"], min, "{run}");
+        }
         (realised, out)
     };
-    let (tight, out) = ratio("tight", 3.0, 3.0, true);
+    let (tight, out) = ratio("tight", 3.0, 3.0, true, &[]);
     assert!((tight - 3.0).abs() < 1e-9, "{tight}");
     // A weights version is a round of updates here, not an episode: the evaluator labels its
     // validations and snapshots with the RL episodes the weights say they were trained on.
@@ -748,7 +752,12 @@ fn the_adaptive_mode_keeps_its_replay_ratio_within_bounds() {
         validated.iter().all(|&e| e <= 40) && validated.contains(&40),
         "validations labelled {validated:?} in a run of 40 RL episodes"
     );
-    ratio("wide", 5.0, 400.0, false);
+    ratio("wide", 5.0, 400.0, false, &[]);
+    // `--replay-ratio fixed` overrides the file: the fixed schedule's 2 updates per episode.
+    let (fixed, out) = ratio("fixed", 3.0, 3.0, false, &["--replay-ratio", "fixed"]);
+    assert!((fixed - 2.0).abs() < 1e-9, "{fixed}");
+    let run = std::fs::read_to_string(out.join("run.json")).unwrap();
+    assert!(run.contains("\"replay_ratio\": \"fixed 2\""), "{run}");
 
     // The lockstep mode has no adaptive schedule: refused before anything is written.
     let config = dir.path().join("tight.toml");
@@ -757,6 +766,21 @@ fn the_adaptive_mode_keeps_its_replay_ratio_within_bounds() {
         .args(["train", "--single-process", "--config"])
         .arg(&config)
         .arg("--out")
+        .arg(&out)
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success());
+    assert!(stderr.contains("needs a distributed run"), "{stderr}");
+    assert!(!out.exists());
+    let o = Command::new(env!("CARGO_BIN_EXE_fsrl"))
+        .args([
+            "train",
+            "--single-process",
+            "--replay-ratio",
+            "4,20",
+            "--out",
+        ])
         .arg(&out)
         .output()
         .unwrap();

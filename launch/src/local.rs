@@ -427,6 +427,17 @@ pub fn run(launch: Launch, stop: &AtomicBool) -> anyhow::Result<()> {
     let mut timing = RunTiming::read(&out, "distributed");
     timing.set("actors", actors);
     timing.set("transport", plane_name(data_plane));
+    // The schedule of updates: the adaptive bounds, or the fixed count per episode.
+    timing.set(
+        "replay_ratio",
+        match resolved.file.train.rl.replay_ratio {
+            Some(r) => serde_json::json!({ "min": r.min, "max": r.max }),
+            None => serde_json::json!(format!(
+                "fixed {}",
+                resolved.file.train.rl.batches_per_episode
+            )),
+        },
+    );
     let warm = warm_start_s.unwrap_or(0.0);
     timing.add_s("warm_start_s", warm);
     timing.add_s("rl_s", (rl_end_s - warm).max(0.0));

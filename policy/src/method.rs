@@ -204,6 +204,30 @@ pub struct ReplayRatio {
     pub max: f64,
 }
 
+impl ReplayRatio {
+    /// What a distributed `fsrl train` and `fsrl reproduce` run when neither the config nor
+    /// `--replay-ratio` says otherwise (Experiment 18 of docs/REPRODUCTION.md).
+    pub const LOCAL_DEFAULT: ReplayRatio = ReplayRatio {
+        min: 4.0,
+        max: 20.0,
+    };
+
+    /// Reads `--replay-ratio`: `MIN,MAX` or `fixed` (`None`: the fixed schedule of
+    /// `batches_per_episode` updates per episode).
+    pub fn parse_arg(s: &str) -> Result<Option<ReplayRatio>, String> {
+        if s.trim() == "fixed" {
+            return Ok(None);
+        }
+        let bad = || {
+            format!("--replay-ratio takes MIN,MAX (updates per RL episode, e.g. 4,20) or `fixed`, got `{s}`")
+        };
+        let (a, b) = s.split_once(',').ok_or_else(bad)?;
+        let min: f64 = a.trim().parse().map_err(|_| bad())?;
+        let max: f64 = b.trim().parse().map_err(|_| bad())?;
+        Ok(Some(ReplayRatio { min, max }))
+    }
+}
+
 impl Default for RlConfig {
     fn default() -> Self {
         Self {
@@ -471,6 +495,28 @@ mod tests {
         c.rl.replay_ratio = Some(ReplayRatio { min: 1.0, max: 2.0 });
         c.rl.batches_per_episode = 0;
         assert!(c.problems()[0].contains("batches_per_episode"));
+    }
+
+    #[test]
+    fn the_replay_ratio_argument_is_bounds_or_fixed() {
+        assert_eq!(ReplayRatio::parse_arg("fixed"), Ok(None));
+        assert_eq!(
+            ReplayRatio::parse_arg(" 4, 20.5"),
+            Ok(Some(ReplayRatio {
+                min: 4.0,
+                max: 20.5
+            }))
+        );
+        for bad in ["", "4", "4,", "a,b", "4;20", "fixd"] {
+            let e = ReplayRatio::parse_arg(bad).unwrap_err();
+            assert!(
+                e.contains("MIN,MAX") && e.contains(&format!("`{bad}`")),
+                "{e}"
+            );
+        }
+        let mut c = TrainConfig::default();
+        c.rl.replay_ratio = Some(ReplayRatio::LOCAL_DEFAULT);
+        assert!(c.problems().is_empty());
     }
 
     #[test]
