@@ -759,35 +759,26 @@ fn the_adaptive_mode_keeps_its_replay_ratio_within_bounds() {
     let run = std::fs::read_to_string(out.join("run.json")).unwrap();
     assert!(run.contains("\"replay_ratio\": \"fixed 2\""), "{run}");
 
-    // The lockstep mode has no adaptive schedule: refused before anything is written.
-    let config = dir.path().join("tight.toml");
+    // The lockstep mode has no adaptive schedule: refused before anything is written, whether
+    // the file or the flag asks for it.
+    let config = dir.path().join("tight.toml").to_string_lossy().into_owned();
     let out = dir.path().join("single");
-    let o = Command::new(env!("CARGO_BIN_EXE_fsrl"))
-        .args(["train", "--single-process", "--config"])
-        .arg(&config)
-        .arg("--out")
-        .arg(&out)
-        .output()
-        .unwrap();
-    let stderr = String::from_utf8_lossy(&o.stderr);
-    assert!(!o.status.success());
-    assert!(stderr.contains("needs a distributed run"), "{stderr}");
-    assert!(!out.exists());
-    let o = Command::new(env!("CARGO_BIN_EXE_fsrl"))
-        .args([
-            "train",
-            "--single-process",
-            "--replay-ratio",
-            "4,20",
-            "--out",
-        ])
-        .arg(&out)
-        .output()
-        .unwrap();
-    let stderr = String::from_utf8_lossy(&o.stderr);
-    assert!(!o.status.success());
-    assert!(stderr.contains("needs a distributed run"), "{stderr}");
-    assert!(!out.exists());
+    for asks in [["--config", config.as_str()], ["--replay-ratio", "4,20"]] {
+        let o = Command::new(env!("CARGO_BIN_EXE_fsrl"))
+            .args(["train", "--single-process"])
+            .args(asks)
+            .arg("--out")
+            .arg(&out)
+            .output()
+            .unwrap();
+        let stderr = String::from_utf8_lossy(&o.stderr);
+        assert!(!o.status.success(), "{asks:?}");
+        assert!(
+            stderr.contains("needs a distributed run"),
+            "{asks:?}: {stderr}"
+        );
+        assert!(!out.exists(), "{asks:?}");
+    }
 }
 
 /// The `episode` of every line of `phase` in a run's `metrics.jsonl`, in order.
