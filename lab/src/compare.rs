@@ -121,13 +121,14 @@ pub struct Group {
     pub members: Vec<SubjectReport>,
 }
 
-const ORDER: [&str; 6] = [
+const ORDER: [&str; 7] = [
     "orca",
     "lstm-rl",
     "sarl",
     "sarl+foresight",
     "sarl+efficiency",
     "fsrl",
+    "fsrl+",
 ];
 
 /// Groups policies by method, in the paper's order (unknown methods last).

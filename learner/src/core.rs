@@ -70,13 +70,61 @@ pub struct Counters {
 #[derive(Debug)]
 pub struct PreparedEpisode {
     demonstration: bool,
-    keep: bool,
     steps: usize,
-    discount: f32,
     feats: Vec<f32>,
-    rewards: Vec<f32>,
-    returns: Vec<f32>,
+    /// The transitions that go into replay, in order (none when the replay filter drops the
+    /// episode).
+    stored: Vec<Stored>,
     targets: Vec<f32>,
+}
+
+/// One transition of a prepared episode: from state `t` to state `next` (`t + 1`, or `t + n`
+/// for an n-step return), the discounted reward in between and the discount of the bootstrap.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Stored {
+    t: usize,
+    next: usize,
+    reward: f32,
+    discount: f32,
+    mc_return: f32,
+}
+
+/// The transitions of an episode of `rewards.len()` steps (SPEC §5 with `n_step = 1` and no
+/// mask: `(t, t + 1, r_t, d)` for every step, discount 0 on the last, which ends the episode,
+/// a timeout included). With `n_step = n` each bootstraps `n` steps on, with the rewards in
+/// between discounted; the return stops at the episode's end (discount 0) and, where
+/// `explored` is given, before an ε-random action, and a transition whose own action was
+/// random is left out.
+fn transitions(
+    rewards: &[f32],
+    returns: &[f32],
+    discount: f32,
+    n_step: usize,
+    explored: Option<&[bool]>,
+) -> Vec<Stored> {
+    let t_len = rewards.len();
+    let random = |k: usize| explored.is_some_and(|m| m[k]);
+    let mut out = Vec::with_capacity(t_len);
+    for t in 0..t_len {
+        if random(t) {
+            continue;
+        }
+        let (mut reward, mut scale, mut next) = (rewards[t], discount, t + 1);
+        while next < t_len && next - t < n_step && !random(next) {
+            reward += scale * rewards[next];
+            scale *= discount;
+            next += 1;
+        }
+        out.push(Stored {
+            t,
+            next,
+            reward,
+            // The last step ends the episode (a timeout is terminal for the target, SPEC §5).
+            discount: if next == t_len { 0.0 } else { scale },
+            mc_return: returns[t],
+        });
+    }
+    out
 }
 
 /// Replay, trainer and schedule of one training run.
@@ -98,6 +146,8 @@ pub struct LearnerCore {
     targets_stale: bool,
     skipped_batches: u64,
     skipped_refreshes: u64,
+    /// Size of the robot's action set (replaying an episode's ε draws needs it; 0: not set).
+    actions: usize,
 }
 
 impl LearnerCore {
@@ -112,6 +162,8 @@ impl LearnerCore {
     ) -> Result<Self, LearnerError> {
         let net_cfg = method.net().ok_or(LearnerError::NotTrainable(method))?;
         let net = ValueNet::new(net_cfg, seed)?;
+        // The method's own training switches (`fsrl+`); the paper's methods as configured.
+        let train = method.train_config(&train);
         let trainer = Trainer::new(
             net,
             AdamConfig::with_lr(train.imitation.learning_rate as f32),
@@ -159,6 +211,7 @@ impl LearnerCore {
             targets_stale: true,
             skipped_batches: 0,
             skipped_refreshes: 0,
+            actions: 0,
         }
     }
 
@@ -185,6 +238,12 @@ impl LearnerCore {
     }
     pub fn humans(&self) -> usize {
         self.humans
+    }
+
+    /// The size of the robot's action set (`sim::ActionSet::for_config(..).len()`), which
+    /// `train.rl.greedy_targets` needs to replay an episode's ε draws.
+    pub fn set_action_count(&mut self, actions: usize) {
+        self.actions = actions;
     }
 
     /// Changes how many RL episodes the run lasts (to extend a resumed run).
@@ -293,7 +352,8 @@ impl LearnerCore {
             .train
             .gamma
             .powf(self.dt_s * ep.states[0].robot.v_pref_mps) as f32;
-        let mut returns = Vec::new();
+        let rewards: Vec<f32> = ep.rewards.iter().map(|r| r.total as f32).collect();
+        let mut stored = Vec::new();
         let mut targets = Vec::new();
         if keep {
             // Features of every state, once (scratch buffers only).
@@ -310,27 +370,62 @@ impl LearnerCore {
             if !self.feats.iter().all(|f| f.is_finite()) {
                 return Err(bad("non-finite feature".into()));
             }
-            returns = vec![0f32; t_len];
+            let mut returns = vec![0f32; t_len];
             let mut mc = 0f32;
             for t in (0..t_len).rev() {
-                mc = ep.rewards[t].total as f32 + discount * mc;
+                mc = rewards[t] + discount * mc;
                 returns[t] = mc;
             }
             if !returns.iter().all(|r| r.is_finite()) {
                 return Err(bad("non-finite return".into()));
             }
-            if self.counters.imitation_done && !self.targets_stale {
+            let explored = if self.train.rl.greedy_targets && ep.epsilon > 0.0 {
+                if self.actions == 0 {
+                    return Err(LearnerError::Phase(
+                        "train.rl.greedy_targets needs the action count (set_action_count)",
+                    ));
+                }
+                Some(policy::rollout::exploration_mask(
+                    ep.seed,
+                    ep.epsilon,
+                    t_len,
+                    self.actions,
+                ))
+            } else {
+                None
+            };
+            stored = transitions(
+                &rewards,
+                &returns,
+                discount,
+                self.train.rl.n_step.max(1) as usize,
+                explored.as_deref(),
+            );
+            if !stored.iter().all(|s| s.reward.is_finite()) {
+                return Err(bad("non-finite n-step reward".into()));
+            }
+            if self.counters.imitation_done && !self.targets_stale && !stored.is_empty() {
                 // New transitions get their targets from the current target network.
-                targets = vec![0f32; t_len];
-                let next =
-                    StateBatch::new(&self.feats[row..(t_len + 1) * row], t_len, self.humans)?;
+                targets = vec![0f32; stored.len()];
+                let one_step = stored.len() == t_len && stored.iter().all(|s| s.next == s.t + 1);
+                let gathered;
+                let next_feats = if one_step {
+                    &self.feats[row..(t_len + 1) * row]
+                } else {
+                    gathered = stored
+                        .iter()
+                        .flat_map(|s| &self.feats[s.next * row..(s.next + 1) * row])
+                        .copied()
+                        .collect::<Vec<f32>>();
+                    &gathered[..]
+                };
+                let next = StateBatch::new(next_feats, stored.len(), self.humans)?;
                 let mut scratch = policy::Scratch::default();
                 self.trainer
                     .target()
                     .values_into(next, &mut scratch, &mut targets);
-                for (t, y) in targets.iter_mut().enumerate() {
-                    let d = if t + 1 == t_len { 0.0 } else { discount };
-                    *y = ep.rewards[t].total as f32 + d * *y;
+                for (y, s) in targets.iter_mut().zip(&stored) {
+                    *y = s.reward + s.discount * *y;
                 }
                 if !targets.iter().all(|y| y.is_finite()) {
                     return Err(bad("non-finite value target".into()));
@@ -339,16 +434,13 @@ impl LearnerCore {
         }
         Ok(PreparedEpisode {
             demonstration,
-            keep,
             steps: t_len,
-            discount,
             feats: if keep {
                 std::mem::take(&mut self.feats)
             } else {
                 Vec::new()
             },
-            rewards: ep.rewards.iter().map(|r| r.total as f32).collect(),
-            returns,
+            stored,
             targets,
         })
     }
@@ -357,12 +449,9 @@ impl LearnerCore {
     pub fn commit_episode(&mut self, p: PreparedEpisode) -> bool {
         let PreparedEpisode {
             demonstration,
-            keep,
             steps: t_len,
-            discount,
             feats,
-            rewards,
-            returns,
+            stored,
             targets,
         } = p;
         let row = self.humans * FEATURE_DIM;
@@ -372,32 +461,30 @@ impl LearnerCore {
             self.counters.rl_episodes += 1;
         }
         self.counters.env_steps += t_len as u64;
-        if !keep {
+        if feats.is_empty() {
             return false;
         }
         let mut first_slot = None;
-        for (t, &mc_return) in returns.iter().enumerate() {
-            // The last step ends the episode (a timeout is terminal for the target, SPEC §5).
-            let terminal = t + 1 == t_len;
+        for s in &stored {
             let slot = self.replay.push(Transition {
-                state: &feats[t * row..(t + 1) * row],
-                next_state: &feats[(t + 1) * row..(t + 2) * row],
-                reward: rewards[t],
-                discount: if terminal { 0.0 } else { discount },
-                mc_return,
+                state: &feats[s.t * row..(s.t + 1) * row],
+                next_state: &feats[s.next * row..(s.next + 1) * row],
+                reward: s.reward,
+                discount: s.discount,
+                mc_return: s.mc_return,
             });
             first_slot.get_or_insert(slot);
         }
         if !targets.is_empty() {
-            let first = first_slot.expect("an episode has at least one step");
+            let first = first_slot.expect("targets are computed for stored transitions only");
             let cap = self.replay.capacity();
-            let head = (cap - first).min(t_len);
+            let head = (cap - first).min(targets.len());
             self.replay.set_targets(first, &targets[..head]);
             self.replay.set_targets(0, &targets[head..]);
         }
         // Hand the buffer back for the next episode's features.
         self.feats = feats;
-        true
+        !stored.is_empty()
     }
 
     /// One gradient step towards `targets`; a batch whose loss or gradient is not finite is
@@ -604,9 +691,31 @@ impl LearnerCore {
             .saturating_mul(self.train.rl.batches_per_episode as u64)
             .max(1);
         let before = self.counters.updates / period;
+        let skipped = self.skipped_refreshes;
         let loss = self.fit_batches(batches)?;
         self.counters.policy_version += 1;
-        if self.counters.updates / period > before {
+        if self.skipped_refreshes > skipped {
+            // A skipped refresh: no update, and in this mode only updates bring the next sync,
+            // so the next round would skip again, for ever (issue 44). The target network is
+            // re-synchronised from the online one; when they are the same already, no round
+            // can change anything and training stops with an error.
+            let (online, target) = (
+                self.trainer.online().params(),
+                self.trainer.target().params(),
+            );
+            if online
+                .iter()
+                .zip(target)
+                .all(|(a, b)| a.to_bits() == b.to_bits())
+            {
+                return Err(PolicyError::NonFinite(
+                    "value targets from the online network itself (training has diverged; the adaptive mode cannot go on)",
+                )
+                .into());
+            }
+            self.trainer.sync_target();
+            self.targets_stale = true;
+        } else if self.counters.updates / period > before {
             self.trainer.sync_target();
             self.targets_stale = true;
         }
@@ -727,6 +836,123 @@ mod tests {
         assert_eq!(core.fit_or_skip(1, false).unwrap(), None);
         assert_eq!(core.skipped_batches(), 1);
         assert_eq!(core.trainer.online().params(), &before[..]);
+    }
+
+    #[test]
+    fn n_step_transitions_sum_discounted_rewards_and_stop_at_the_end_or_a_random_action() {
+        let r = [1.0f32, 2.0, 3.0, 4.0, 5.0];
+        let g = [0.0f32; 5];
+        let d = 0.5f32;
+        // n = 1, no mask: SPEC §5's transitions, discount 0 on the last.
+        let one = transitions(&r, &g, d, 1, None);
+        assert_eq!(one.len(), 5);
+        for (t, s) in one.iter().enumerate() {
+            assert_eq!((s.t, s.next, s.reward), (t, t + 1, r[t]));
+            assert_eq!(s.discount, if t == 4 { 0.0 } else { d });
+        }
+        // n = 3: three rewards, bootstrap three steps on at d^3; cut at the episode's end.
+        let three = transitions(&r, &g, d, 3, None);
+        assert_eq!(
+            (three[0].next, three[0].reward),
+            (3, 1.0 + 0.5 * 2.0 + 0.25 * 3.0)
+        );
+        assert_eq!(three[0].discount, 0.125);
+        assert_eq!(
+            (three[3].next, three[3].reward, three[3].discount),
+            (5, 4.0 + 2.5, 0.0)
+        );
+        // Step 2 random: left out, and the returns of steps 0 and 1 stop before it.
+        let mask = [false, false, true, false, false];
+        let greedy = transitions(&r, &g, d, 3, Some(&mask));
+        let ts: Vec<usize> = greedy.iter().map(|s| s.t).collect();
+        assert_eq!(ts, [0, 1, 3, 4]);
+        assert_eq!(
+            (greedy[0].next, greedy[0].reward, greedy[0].discount),
+            (2, 2.0, 0.25)
+        );
+        assert_eq!(
+            (greedy[1].next, greedy[1].reward, greedy[1].discount),
+            (2, 2.0, 0.5)
+        );
+        assert_eq!((greedy[2].next, greedy[2].discount), (5, 0.0));
+    }
+
+    fn rl_episode(core: &LearnerCore, seed: u64, epsilon: f64) -> EpisodeData {
+        let cfg = Method::Fsrl.sim_config(&sim::SimConfig::default());
+        let mut env = sim::Env::new(cfg, "env1-invisible".parse().unwrap(), 0).unwrap();
+        let mut la = policy::lookahead::Lookahead::new(
+            0.9,
+            policy::lookahead::HumanModel::Orca,
+            HumanOrder::AsGiven,
+        );
+        rollout(
+            &mut env,
+            seed,
+            Behaviour::Net {
+                net: core.online(),
+                lookahead: &mut la,
+                epsilon,
+                policy_version: 1,
+            },
+        )
+        .unwrap()
+    }
+
+    /// `train.rl.greedy_targets` leaves the ε-random steps out of replay (the learner replays
+    /// the episode's draws), and `train.rl.n_step` stores n-step rewards; off, every step goes
+    /// in with its one-step reward (the paper).
+    #[test]
+    fn the_target_switches_change_what_goes_into_replay() {
+        let cfg = sim::SimConfig::default();
+        let core_with = |n_step: u32, greedy: bool| {
+            let mut train = TrainConfig::default();
+            train.rl.n_step = n_step;
+            train.rl.greedy_targets = greedy;
+            let mut core =
+                LearnerCore::new(Method::Fsrl, train, cfg.humans.count, cfg.dt_s, 1).unwrap();
+            core.set_action_count(sim::ActionSet::for_config(&cfg).len());
+            for seed in 0..2 {
+                core.add_episode(&orca_episode(seed), true).unwrap();
+            }
+            core.start_rl().unwrap();
+            core
+        };
+        let mut paper = core_with(1, false);
+        let ep = rl_episode(&paper, 1 << 63 | 77, 0.5);
+        let steps = ep.steps();
+        let actions = sim::ActionSet::for_config(&cfg).len();
+        let mask = policy::rollout::exploration_mask(ep.seed, ep.epsilon, steps, actions);
+        let random = mask.iter().filter(|m| **m).count();
+        assert!(random > 0 && random < steps, "{random} of {steps}");
+        let before = paper.replay().len();
+        paper.add_episode(&ep, false).unwrap();
+        assert_eq!(paper.replay().len() - before, steps);
+
+        let mut greedy = core_with(1, true);
+        let before = greedy.replay().len();
+        greedy.add_episode(&ep, false).unwrap();
+        assert_eq!(greedy.replay().len() - before, steps - random);
+        // Without the action count the draws cannot be replayed: refused, nothing stored.
+        greedy.set_action_count(0);
+        assert!(greedy.add_episode(&ep, false).is_err());
+
+        let mut nstep = core_with(4, false);
+        let before = nstep.replay().len();
+        nstep.add_episode(&ep, false).unwrap();
+        assert_eq!(nstep.replay().len() - before, steps);
+        let len = paper.replay().len();
+        let (_, r1, d1) = paper.replay().target_inputs(before..len);
+        let (_, r4, d4) = nstep.replay().target_inputs(before..len);
+        let disc = d1[0];
+        assert!(
+            (d4[0] - disc * disc * disc * disc).abs() < 1e-7,
+            "{}",
+            d4[0]
+        );
+        let expected = r1[0] + disc * r1[1] + disc * disc * r1[2] + disc.powi(3) * r1[3];
+        assert!((r4[0] - expected).abs() < 1e-6, "{} {expected}", r4[0]);
+        assert_eq!(d4[steps - 1], 0.0);
+        assert_ne!(r1, r4);
     }
 
     /// The adaptive mode's rounds: each bumps the version once; the target network follows

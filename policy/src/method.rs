@@ -33,16 +33,22 @@ pub enum Method {
     /// SARL network, R_c + efficiency (R_t).
     #[serde(rename = "sarl+efficiency")]
     SarlEfficiency,
+    /// Beyond the paper: FSRL's network and reward, trained with value targets on the robot's
+    /// own choices and n-step returns ([`Method::train_config`]; docs/REPRODUCTION.md,
+    /// Experiment 19).
+    #[serde(rename = "fsrl+")]
+    FsrlPlus,
 }
 
 impl Method {
-    pub const ALL: [Method; 6] = [
+    pub const ALL: [Method; 7] = [
         Method::Orca,
         Method::LstmRl,
         Method::Sarl,
         Method::Fsrl,
         Method::SarlForesight,
         Method::SarlEfficiency,
+        Method::FsrlPlus,
     ];
 
     pub fn name(self) -> &'static str {
@@ -53,7 +59,13 @@ impl Method {
             Method::Fsrl => "fsrl",
             Method::SarlForesight => "sarl+foresight",
             Method::SarlEfficiency => "sarl+efficiency",
+            Method::FsrlPlus => "fsrl+",
         }
+    }
+
+    /// Whether the method goes beyond the paper (its rows are labelled so in reports).
+    pub fn beyond_paper(self) -> bool {
+        self == Method::FsrlPlus
     }
 
     /// The value network, `None` for ORCA.
@@ -69,7 +81,7 @@ impl Method {
     pub fn reward_switches(self) -> (bool, bool) {
         match self {
             Method::Orca | Method::LstmRl | Method::Sarl => (false, false),
-            Method::Fsrl => (true, true),
+            Method::Fsrl | Method::FsrlPlus => (true, true),
             Method::SarlForesight => (true, false),
             Method::SarlEfficiency => (false, true),
         }
@@ -81,6 +93,18 @@ impl Method {
         let (foresight, efficiency) = self.reward_switches();
         cfg.reward.foresight = foresight;
         cfg.reward.efficiency = efficiency;
+        cfg
+    }
+
+    /// The training config this method trains with: `base` with the method's own switches
+    /// (`fsrl+`: `train.rl.greedy_targets` and `train.rl.n_step = 4`; every other method:
+    /// `base` unchanged, so the paper's methods train exactly as configured).
+    pub fn train_config(self, base: &TrainConfig) -> TrainConfig {
+        let mut cfg = base.clone();
+        if self == Method::FsrlPlus {
+            cfg.rl.greedy_targets = true;
+            cfg.rl.n_step = FSRL_PLUS_N_STEP;
+        }
         cfg
     }
 
@@ -101,7 +125,7 @@ impl fmt::Display for Method {
 
 /// An unknown method name.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
-#[error("unknown method `{0}`; expected one of orca, lstm-rl, sarl, fsrl, sarl+foresight, sarl+efficiency")]
+#[error("unknown method `{0}`; expected one of orca, lstm-rl, sarl, fsrl, sarl+foresight, sarl+efficiency, fsrl+")]
 pub struct UnknownMethod(pub String);
 
 impl FromStr for Method {
@@ -192,6 +216,30 @@ pub struct RlConfig {
     /// between `min` and `max` (Reverb's sample-to-insert ratio). Absent: the fixed schedule.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub replay_ratio: Option<ReplayRatio>,
+    /// Steps of reward before a value target bootstraps: `y_t = r_t + d·r_{t+1} + … +
+    /// d^{n−1}·r_{t+n−1} + d^n·V_target(s_{t+n})`, cut short at the end of the episode (and, with
+    /// `greedy_targets`, before an ε-random action). 1 (the paper): `y = r + d·V_target(s')`.
+    /// Beyond the paper (docs/REPRODUCTION.md, Experiment 19); not written when 1, so the
+    /// paper's configs, checkpoints and model files keep their bytes.
+    #[serde(skip_serializing_if = "is_one")]
+    pub n_step: u32,
+    /// Train only on the robot's own choices: a transition whose action was an ε-random draw is
+    /// left out of replay, and an n-step return stops before one (Watkins). The value then
+    /// estimates the greedy policy the robot runs at test time, not the ε-greedy one it explored
+    /// with. Beyond the paper (Experiment 19); false (the paper, CrowdNav): every transition.
+    #[serde(skip_serializing_if = "std::ops::Not::not")]
+    pub greedy_targets: bool,
+}
+
+/// `fsrl+`'s n-step return (Experiment 19).
+pub const FSRL_PLUS_N_STEP: u32 = 4;
+
+/// The longest n-step return `train.rl.n_step` may ask for (an episode is at most a few hundred
+/// steps; beyond this a target is a Monte-Carlo return in all but name).
+pub const MAX_N_STEP: u32 = 64;
+
+fn is_one(n: &u32) -> bool {
+    *n == 1
 }
 
 /// Bounds of the adaptive mode's replay ratio, in updates (batches) per accepted RL episode:
@@ -242,6 +290,8 @@ impl Default for RlConfig {
             replay_capacity: 100_000,
             replay_filter: ReplayFilter::All,
             replay_ratio: None,
+            n_step: 1,
+            greedy_targets: false,
         }
     }
 }
@@ -400,6 +450,12 @@ impl TrainConfig {
                 p.push("train.rl.replay_ratio needs train.rl.batches_per_episode of at least 1 (the updates of one policy version in the adaptive mode)".into());
             }
         }
+        if !(1..=MAX_N_STEP).contains(&self.rl.n_step) {
+            p.push(format!(
+                "train.rl.n_step must be in 1..={MAX_N_STEP}, got {}",
+                self.rl.n_step
+            ));
+        }
         if self.rl.target_update_episodes == 0 {
             p.push("train.rl.target_update_episodes must be at least 1".into());
         }
@@ -449,6 +505,18 @@ mod tests {
         assert_eq!(Method::SarlForesight.reward_switches(), (true, false));
         assert_eq!(Method::SarlEfficiency.reward_switches(), (false, true));
         assert!("ppo".parse::<Method>().is_err());
+        // fsrl+ is FSRL's network and reward with its own training switches; the paper's
+        // methods train exactly as configured.
+        assert_eq!(Method::FsrlPlus.net(), Method::Fsrl.net());
+        assert_eq!(Method::FsrlPlus.reward_switches(), (true, true));
+        let plain = TrainConfig::default();
+        let plus = Method::FsrlPlus.train_config(&plain);
+        assert!(plus.rl.greedy_targets && plus.rl.n_step == FSRL_PLUS_N_STEP);
+        for m in Method::ALL.into_iter().filter(|m| *m != Method::FsrlPlus) {
+            assert_eq!(m.train_config(&plain), plain, "{m}");
+            assert!(!m.beyond_paper());
+        }
+        assert!(Method::FsrlPlus.beyond_paper());
     }
 
     #[test]

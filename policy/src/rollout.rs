@@ -79,8 +79,42 @@ pub fn episode_seed(run_seed: u64, stream: u64, index: u64) -> u64 {
     (z ^ (z >> 31)) | (1 << 63)
 }
 
+/// The ε-greedy draws of one episode: a generator seeded by the episode seed, one uniform draw
+/// per step and, when it falls below ε, a uniform action. [`rollout`] draws through it, and the
+/// learner replays it ([`exploration_mask`]) to know which of an episode's actions were random
+/// without their being sent.
+#[derive(Debug, Clone)]
+pub struct Explorer {
+    rng: ChaCha8Rng,
+    epsilon: f64,
+}
+
+impl Explorer {
+    pub fn new(seed: u64, epsilon: f64) -> Self {
+        Self {
+            rng: ChaCha8Rng::seed_from_u64(seed ^ 0x005E_ED0F_E951_1015),
+            epsilon,
+        }
+    }
+
+    /// The next step's draw: `Some(random action)` among `n_actions` when it explores.
+    pub fn draw(&mut self, n_actions: usize) -> Option<usize> {
+        let explore = self.rng.gen::<f64>() < self.epsilon;
+        explore.then(|| self.rng.gen_range(0..n_actions))
+    }
+}
+
+/// Which of the first `steps` actions of the episode run with `seed` and `epsilon` were ε-random
+/// (the draws of [`rollout`], replayed; `n_actions` is the size of the action set).
+pub fn exploration_mask(seed: u64, epsilon: f64, steps: usize, n_actions: usize) -> Vec<bool> {
+    let mut explorer = Explorer::new(seed, epsilon);
+    (0..steps)
+        .map(|_| explorer.draw(n_actions).is_some())
+        .collect()
+}
+
 /// Resets `env` to `seed` and runs the episode to its end with `behaviour`. The ε draws come
-/// from a generator seeded by the episode seed, so (seed, weights, ε) replays bit for bit.
+/// from an [`Explorer`] seeded by the episode seed, so (seed, weights, ε) replays bit for bit.
 pub fn rollout(
     env: &mut Env,
     seed: u64,
@@ -88,7 +122,6 @@ pub fn rollout(
 ) -> Result<EpisodeData, PolicyError> {
     env.reset(seed)
         .map_err(|e| PolicyError::Config(e.to_string()))?;
-    let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x005E_ED0F_E951_1015);
     let mut states = Vec::with_capacity(env.config().max_steps() as usize + 1);
     let mut actions = Vec::with_capacity(env.config().max_steps() as usize);
     let mut failure = None;
@@ -100,6 +133,7 @@ pub fn rollout(
             ..
         } => (*epsilon, *policy_version),
     };
+    let mut explorer = Explorer::new(seed, epsilon);
     let mut behaviour = behaviour;
     let episode = run_episode(
         env,
@@ -107,23 +141,16 @@ pub fn rollout(
             states.push(JointState::observe(env));
             let action = match &mut behaviour {
                 Behaviour::Orca { safety_space_m } => env.orca_robot_action(*safety_space_m),
-                Behaviour::Net {
-                    net,
-                    lookahead,
-                    epsilon,
-                    ..
-                } => {
-                    let explore = rng.gen::<f64>() < *epsilon;
-                    if explore {
-                        rng.gen_range(0..env.action_set().len())
-                    } else {
-                        match lookahead.decide(env, net) {
+                Behaviour::Net { net, lookahead, .. } => {
+                    match explorer.draw(env.action_set().len()) {
+                        Some(random) => random,
+                        None => match lookahead.decide(env, net) {
                             Ok(d) => d.action,
                             Err(e) => {
                                 failure.get_or_insert(e);
                                 0
                             }
-                        }
+                        },
                     }
                 }
             };
@@ -172,6 +199,57 @@ mod tests {
         }
         assert_eq!(episode_seed(7, 1, 2), episode_seed(7, 1, 2));
         assert_ne!(episode_seed(7, 1, 2), episode_seed(8, 1, 2));
+    }
+
+    /// The mask the learner replays marks exactly the steps whose action the ε draw chose:
+    /// an episode run with ε = 0.4 and one with ε = 0 from the same weights agree on every
+    /// step before the first random one, and at every marked step the action is the draw's.
+    #[test]
+    fn the_exploration_mask_replays_the_episodes_draws() {
+        let setting: Setting = "env1-invisible".parse().unwrap();
+        let mut env = Env::new(SimConfig::default(), setting, 0).unwrap();
+        let net = ValueNet::new(NetConfig::sarl(), 3).unwrap();
+        let mut la = Lookahead::new(0.9, HumanModel::Orca, HumanOrder::AsGiven);
+        let seed = 1 << 63 | 5;
+        let ep = rollout(
+            &mut env,
+            seed,
+            Behaviour::Net {
+                net: &net,
+                lookahead: &mut la,
+                epsilon: 0.4,
+                policy_version: 1,
+            },
+        )
+        .unwrap();
+        let n = env.action_set().len();
+        let mask = exploration_mask(seed, 0.4, ep.steps(), n);
+        assert!(mask.iter().any(|m| *m) && !mask.iter().all(|m| *m));
+        let mut explorer = Explorer::new(seed, 0.4);
+        for (t, &random) in mask.iter().enumerate() {
+            match explorer.draw(n) {
+                Some(a) => {
+                    assert!(random);
+                    assert_eq!(ep.actions[t] as usize, a, "step {t}");
+                }
+                None => assert!(!random),
+            }
+        }
+        let greedy = rollout(
+            &mut env,
+            seed,
+            Behaviour::Net {
+                net: &net,
+                lookahead: &mut la,
+                epsilon: 0.0,
+                policy_version: 1,
+            },
+        )
+        .unwrap();
+        let first = mask.iter().position(|m| *m).unwrap();
+        assert_eq!(ep.actions[..first], greedy.actions[..first]);
+        assert!(exploration_mask(seed, 0.0, 50, n).iter().all(|m| !*m));
+        assert!(exploration_mask(seed, 1.0, 50, n).iter().all(|m| *m));
     }
 
     #[test]

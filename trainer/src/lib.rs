@@ -122,6 +122,7 @@ pub fn run(
     let spec = run.spec;
     let out = run.out;
     let sim_cfg = spec.method_sim();
+    core.set_action_count(sim::ActionSet::for_config(&sim_cfg).len());
     let train = core.config().clone();
     if train.rl.replay_ratio.is_some() {
         return Err(TrainerError::AdaptiveNeedsProcesses);

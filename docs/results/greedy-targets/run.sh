@@ -1,0 +1,30 @@
+#!/usr/bin/env bash
+# Experiment 19 (docs/REPRODUCTION.md): FSRL with value targets on the robot's own choices (and
+# n-step returns), env1-invisible, seeds 0-2, single process, against the shipped models on the
+# 500 test seeds. Copies each run's test evaluation and validation lines here, compares with
+# `fsrl compare --vs` (Welch per metric, over seeds) and scores the runs' last weights too.
+#   docs/results/greedy-targets/run.sh /path/to/fsrl ARM      (ARM: a or b; RUNS=runs/h19<arm>)
+set -euo pipefail
+cd "$(dirname "$0")/../../.."
+fsrl=${1:?usage: $0 /path/to/fsrl ARM}
+arm=${2:?usage: $0 /path/to/fsrl ARM}
+runs=${RUNS:-runs/h19$arm}
+out=docs/results/greedy-targets/$arm
+mkdir -p "$out/evals" "$out/runs" "$out/last"
+for s in 0 1 2; do
+  name="fsrl-env1-invisible-s$s"
+  cp "$runs/eval/$name/eval.json" "$out/evals/$name.json"
+  cp "$runs/$name/config.toml" "$out/runs/$name.config.toml"
+  grep '"phase":"validation"' "$runs/$name/metrics.jsonl" > "$out/runs/$name.validation.jsonl"
+  # Secondary: the run's last weights on the same test seeds.
+  if [ ! -f "$out/last/$name.json" ]; then
+    "$fsrl" eval "$runs/$name/checkpoints/latest.ckpt" --settings env1-invisible \
+      --out "$runs/eval-last/$name" > /dev/null
+    cp "$runs/eval-last/$name/eval.json" "$out/last/$name.json"
+  fi
+done
+"$fsrl" compare "$out"/evals/fsrl-env1-invisible-s{0,1,2}.json \
+  --vs docs/results/grid/fsrl-env1-invisible-s{0,1,2}.json --out "$out/compare" > /dev/null
+"$fsrl" compare "$out"/last/fsrl-env1-invisible-s{0,1,2}.json \
+  --vs docs/results/grid/fsrl-env1-invisible-s{0,1,2}.json --out "$out/compare-last" > /dev/null
+echo "$out/compare/compare.md $out/compare-last/compare.md"
