@@ -3,10 +3,9 @@
 //! (`cmd_robot.rs`).
 
 use std::path::PathBuf;
-use std::time::Duration;
 
 use anyhow::Context;
-use serve::{Distro, PeopleFormat, Ros2Style, Topics, Trigger};
+use serve::{Clock, Distro, PeopleFormat, Ros2Style, Topics, Trigger};
 
 /// How ROS 2 topics travel on zenoh and where zenoh connects (both ends).
 #[derive(Debug, Clone, clap::Args)]
@@ -87,15 +86,31 @@ pub struct ServeArgs {
     #[arg(long, default_value = "timer", value_parser = ["timer", "odometry"])]
     pub trigger: String,
     /// Control period in seconds [default: the model's step].
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     pub period_s: Option<f64>,
     /// Zero command when odometry or people are older than this many periods.
-    #[arg(long, default_value_t = 2.0)]
+    #[arg(long, default_value_t = 2.0, allow_negative_numbers = true)]
     pub stale_periods: f64,
-    #[arg(long, default_value_t = f64::INFINITY)]
-    pub max_speed_mps: f64,
-    #[arg(long, default_value_t = f64::INFINITY)]
-    pub max_turn_rate_radps: f64,
+    /// Largest linear speed sent, m/s [default: no limit but the model's actions].
+    #[arg(long, allow_negative_numbers = true)]
+    pub max_speed_mps: Option<f64>,
+    /// Largest turn rate sent, rad/s [default: no limit but the model's actions].
+    #[arg(long, allow_negative_numbers = true)]
+    pub max_turn_rate_radps: Option<f64>,
+    /// Most people in one message (or query); more: refused, a zero command.
+    #[arg(long, default_value_t = serve::control::DEFAULT_MAX_PEOPLE)]
+    pub max_people: usize,
+    /// Longest a decision may take, in seconds; a slower one is dropped for a zero command
+    /// [default: half the period].
+    #[arg(long, allow_negative_numbers = true)]
+    pub decision_budget_s: Option<f64>,
+    /// Stamps are the simulator's (or a bag's) clock, not this computer's: people and goal
+    /// stamps are checked against the odometry's only (ROS' use_sim_time).
+    #[arg(long)]
+    pub use_sim_time: bool,
+    /// How far a stamp may be from the clock it is checked against, in seconds.
+    #[arg(long, default_value_t = 0.5, allow_negative_numbers = true)]
+    pub stamp_tolerance_s: f64,
     /// Whether people react to the robot [default: as in the model's trained setting].
     #[arg(long)]
     pub robot_visible: Option<bool>,
@@ -104,16 +119,10 @@ pub struct ServeArgs {
 }
 
 pub fn run(a: ServeArgs) -> anyhow::Result<()> {
-    let period = a
-        .period_s
-        .map(Duration::try_from_secs_f64)
-        .transpose()
-        .context("--period-s")?;
     let opts = serve::ServeOptions {
         style: a.ros.style(),
         topics: a.ros.topics(),
         zenoh: a.ros.zenoh(),
-        model: a.model,
         name: a.name,
         people_format: a.ros.people_format,
         trigger: if a.trigger == "odometry" {
@@ -121,23 +130,29 @@ pub fn run(a: ServeArgs) -> anyhow::Result<()> {
         } else {
             Trigger::Timer
         },
-        period,
+        period_s: a.period_s,
         stale_periods: a.stale_periods,
         limits: serve::served::Limits {
             max_speed_mps: a.max_speed_mps,
             max_turn_rate_radps: a.max_turn_rate_radps,
         },
+        clock: if a.use_sim_time {
+            Clock::Odometry
+        } else {
+            Clock::System
+        },
+        stamp_tolerance_s: a.stamp_tolerance_s,
+        max_people: a.max_people,
+        decision_budget_s: a.decision_budget_s,
         robot_visible: a.robot_visible,
+        ..serve::ServeOptions::new(a.model)
     };
-    let (tx, rx) = serve::node::channel();
-    let stop = std::sync::Mutex::new(tx.clone());
-    ctrlc::set_handler(move || {
-        if let Ok(tx) = stop.lock() {
-            let _ = tx.send(serve::node::Event::Shutdown);
-        }
-    })
-    .context("installing the Ctrl-C/SIGTERM handler")?;
+    // Every bad number in one line, before anything is opened, loaded or installed.
+    opts.check()?;
+    let inbox = serve::Inbox::new();
+    let stop = inbox.stopper();
+    ctrlc::set_handler(move || stop.stop()).context("installing the Ctrl-C/SIGTERM handler")?;
     // The line tests and scripts wait for: everything is declared, commands flow from now on.
-    serve::run(&opts, (tx, rx), || println!("ready"))?;
+    serve::run(&opts, inbox, || println!("ready"))?;
     Ok(())
 }

@@ -11,38 +11,40 @@
 //!   rounding; every episode that ends differently must show a step where the served command
 //!   differed from the in-process decision (the stand-in counts them), and the counts are
 //!   printed;
-//! - safety: stale odometry, a dropped people topic, undecodable bytes and SIGTERM each lead to
-//!   a zero command.
+//! - safety: stale odometry, a dropped people topic, undecodable bytes, stamps from the future
+//!   or another clock, too many people, a goal or people in another frame and SIGTERM each lead
+//!   to a zero command, and the reason logged for it is checked;
+//! - every bad number on the command line is refused in one line before anything starts.
+//!
+//! Floods (queries, people, a subscriber that never reads) are in `serve_flood.rs`.
 
 mod net_support;
+mod serve_support;
 
-use std::io::{BufRead, BufReader};
 use std::ops::Range;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::sync::mpsc;
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
-use net_support::{free_port, Reaped as Proc};
-use serve::msg::{
-    self, Header, Odometry, People, Point, Pose, PoseStamped, Quaternion, Time, Twist,
-};
+use net_support::free_port;
+use serve::msg::{self, Twist};
+use serve_support::{goal, model_path, moving, now_s, odometry, people, zero, Robot, Served};
 use zenoh::Wait;
 
-const MODEL: &str = "models/fsrl-env1-invisible-s0.fsrlm";
 const SETTING: &str = "env1-invisible";
 const SEEDS: Range<u64> = 1000..1050;
 /// Fewer seeds where a loop adds a format or a kinematics rather than the main check.
 const FEW_SEEDS: Range<u64> = 1000..1010;
-/// `fsrl serve` deciding in lockstep with the stand-in (which waits for each command).
-const LOCKSTEP: [&str; 4] = ["--trigger", "odometry", "--stale-periods", "40"];
-
-fn model_path() -> String {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join(MODEL)
-        .to_string_lossy()
-        .into_owned()
-}
+/// `fsrl serve` deciding in lockstep with the stand-in (which waits for each command), on the
+/// stand-in's simulated clock.
+const LOCKSTEP: [&str; 5] = [
+    "--trigger",
+    "odometry",
+    "--stale-periods",
+    "40",
+    "--use-sim-time",
+];
 
 /// A closed loop's model, the setting it plays and the seeds.
 struct Loop {
@@ -60,41 +62,6 @@ impl Loop {
             seeds,
         }
     }
-}
-
-/// Starts `fsrl serve` on the shipped model listening on `port` and waits for its `ready` line.
-fn serve(port: u16, extra: &[&str]) -> Proc {
-    serve_model(Path::new(&model_path()), port, extra)
-}
-
-/// Starts `fsrl serve MODEL` listening on `port` and waits for its `ready` line.
-fn serve_model(model: &Path, port: u16, extra: &[&str]) -> Proc {
-    let mut c = Command::new(env!("CARGO_BIN_EXE_fsrl"))
-        .arg("serve")
-        .arg(model)
-        .arg("--listen")
-        .arg(format!("tcp/127.0.0.1:{port}"))
-        .args(extra)
-        .stdin(Stdio::null())
-        .stdout(Stdio::piped())
-        .stderr(Stdio::inherit())
-        .spawn()
-        .unwrap();
-    let stdout = c.stdout.take().unwrap();
-    let proc = Proc(c);
-    let (tx, rx) = mpsc::channel();
-    std::thread::spawn(move || {
-        for line in BufReader::new(stdout).lines().map_while(Result::ok) {
-            let _ = tx.send(line);
-        }
-    });
-    let ready = rx.recv_timeout(Duration::from_secs(60));
-    assert_eq!(
-        ready.as_deref(),
-        Ok("ready"),
-        "fsrl serve did not become ready"
-    );
-    proc
 }
 
 #[derive(Debug, PartialEq)]
@@ -196,7 +163,7 @@ fn compare(lp: &Loop, played: &[Played], what: &str, exact: bool) -> Versus {
 /// arguments both ends share go in both).
 fn closed_loop(lp: &Loop, serve_args: &[&str], robot_args: &[&str]) -> Vec<Played> {
     let port = free_port();
-    let _serve = serve_model(&lp.model, port, serve_args);
+    let _serve = Served::start(&lp.model, &format!("tcp/127.0.0.1:{port}"), serve_args);
     as_robot(lp, port, robot_args)
 }
 
@@ -329,169 +296,190 @@ fn closed_loop_of_a_holonomic_policy_matches_fsrl_eval_per_seed() {
     assert_eq!(v.ended_differently, 0, "episodes that end differently");
 }
 
-/// A test-side ROS 2 peer on the bridge keys.
-struct Peer {
-    session: zenoh::Session,
-    cmd: mpsc::Receiver<Twist>,
-    _sub: zenoh::pubsub::Subscriber<()>,
-}
-
-impl Peer {
-    fn connect(port: u16) -> Self {
-        let cfg = transport::ZenohConfig::peer(
-            vec!["tcp/127.0.0.1:0".into()],
-            vec![format!("tcp/127.0.0.1:{port}")],
-        )
-        .to_zenoh(1 << 20)
-        .unwrap();
-        let session = zenoh::open(cfg).wait().unwrap();
-        let (tx, cmd) = mpsc::channel();
-        let sub = session
-            .declare_subscriber("cmd_vel")
-            .callback(move |s| {
-                if let Ok(t) = msg::decode::<Twist>(&s.payload().to_bytes()) {
-                    let _ = tx.send(t);
-                }
-            })
-            .wait()
-            .unwrap();
-        Self {
-            session,
-            cmd,
-            _sub: sub,
-        }
-    }
-
-    fn put(&self, key: &str, bytes: Vec<u8>) {
-        self.session.put(key, bytes).wait().unwrap();
-    }
-
-    fn odom(&self, t_s: f64) {
-        let mut o = Odometry {
-            header: header(t_s),
-            child_frame_id: "base_link".into(),
-            ..Odometry::default()
-        };
-        o.pose.pose.position.y = -4.0;
-        o.pose.pose.orientation = Quaternion::from_yaw(std::f64::consts::FRAC_PI_2);
-        self.put("odom", msg::encode(&o).unwrap());
-    }
-
-    fn people(&self, t_s: f64) {
-        let p = serve::people::person_with_tags(
-            "a".into(),
-            &serve::people::PersonObs {
-                position: sim::Vec2::new(2.0, 0.0),
-                velocity: sim::Vec2::new(-0.5, 0.0),
-                radius_m: None,
-                goal: None,
-                v_pref_mps: None,
-                standing: None,
-            },
-        );
-        let m = People {
-            header: header(t_s),
-            people: vec![p],
-        };
-        self.put("people", msg::encode(&m).unwrap());
-    }
-
-    fn goal(&self) {
-        let g = PoseStamped {
-            header: header(1.0),
-            pose: Pose {
-                position: Point {
-                    x: 0.0,
-                    y: 4.0,
-                    z: 0.0,
-                },
-                ..Pose::default()
-            },
-        };
-        self.put("goal_pose", msg::encode(&g).unwrap());
-    }
-
-    /// Waits for a command satisfying `pred` while `feed` runs every 100 ms.
-    fn until(&self, what: &str, mut feed: impl FnMut(), pred: impl Fn(&Twist) -> bool) {
-        let deadline = Instant::now() + Duration::from_secs(20);
-        while Instant::now() < deadline {
-            feed();
-            if let Ok(t) = self.cmd.recv_timeout(Duration::from_millis(100)) {
-                if pred(&t) {
-                    return;
-                }
-            }
-        }
-        panic!("no command: {what}");
-    }
-}
-
-fn header(t_s: f64) -> Header {
-    Header {
-        stamp: Time::from_secs_f64(t_s),
-        frame_id: "odom".into(),
-    }
-}
-
-fn moving(t: &Twist) -> bool {
-    t.linear.x != 0.0 || t.angular.z != 0.0
-}
-
-fn zero(t: &Twist) -> bool {
-    *t == Twist::ZERO
-}
-
+/// Each zero command and the reason `fsrl serve` gives for it, one cause at a time, with
+/// driving (fresh inputs) in between. The robot stamps with this computer's clock.
 #[test]
-fn stale_input_dropped_people_garbage_and_sigterm_each_give_a_zero_command() {
+fn each_cause_of_a_zero_command_gives_one_with_its_reason() {
     let port = free_port();
-    let mut serve = serve(port, &[]);
-    let peer = Peer::connect(port);
-    let mut t = 1.0;
-    let mut fresh = || {
-        t += 0.1;
-        peer.goal();
-        peer.people(t);
-        peer.odom(t);
+    let mut serve = Served::shipped(port, &[]);
+    let robot = Robot::connect(&format!("tcp/127.0.0.1:{port}"));
+    let within = Duration::from_secs(10);
+    // Before any input: a stop, no odometry yet.
+    robot.until("a stop before any input", || {}, zero);
+    assert_eq!(serve.next_stop_reason(within), "no odometry received yet");
+
+    // One phase: drive with fresh inputs, then `feed` until a zero command; its logged reason
+    // must contain `reason`.
+    let phase = |what: &str, feed: &mut dyn FnMut(), reason: &[&str]| {
+        robot.until("driving with fresh inputs", || robot.fresh(), moving);
+        serve.wait_log("driving", within);
+        robot.drain();
+        robot.until(what, &mut *feed, zero);
+        let got = serve.next_stop_reason(within);
+        assert!(
+            reason.iter().all(|r| got.contains(r)),
+            "{what}: the zero command says {got:?}, not {reason:?}"
+        );
     };
-    peer.until("driving with fresh inputs", &mut fresh, moving);
-    // Everything stops: stale odometry.
-    peer.until("stale odometry", || {}, zero);
-    peer.until("driving again", &mut fresh, moving);
+    let people_go_on = || robot.put("people", people("odom", now_s(), 1));
+    // Odometry stops, people go on.
+    phase(
+        "stale odometry",
+        &mut || people_go_on(),
+        &["odometry is stale"],
+    );
     // People stop, odometry goes on.
-    let mut t2 = 100.0;
-    peer.until(
+    phase(
         "people dropped",
-        || {
-            t2 += 0.1;
-            peer.odom(t2);
-        },
-        zero,
+        &mut || robot.put("odom", odometry(now_s())),
+        &["people data stopped"],
     );
-    peer.until("driving again", &mut fresh, moving);
-    // Undecodable bytes on every input: counted, never a crash; a stop once the last good
-    // inputs are stale, and driving again when good ones come.
-    peer.until(
-        "garbage only",
-        || {
-            peer.put("odom", b"\x00\x01\x00\x00garbage".to_vec());
-            peer.put("people", vec![0xff; 3]);
-            peer.put("goal_pose", vec![]);
+    // Undecodable odometry and goal: counted, never a crash; the last good odometry goes
+    // stale.
+    phase(
+        "garbage",
+        &mut || {
+            robot.put("odom", b"\x00\x01\x00\x00garbage".to_vec());
+            robot.put("goal_pose", vec![]);
+            people_go_on();
         },
-        zero,
+        &["odometry is stale"],
     );
-    peer.until("driving after garbage", &mut fresh, moving);
+    // Odometry an hour ahead of this computer's clock.
+    phase(
+        "odometry from the future",
+        &mut || {
+            people_go_on();
+            robot.put("odom", odometry(now_s() + 3600.0));
+        },
+        &[
+            "odometry refused: stamped",
+            "ahead of this computer's clock",
+        ],
+    );
+    // People on a simulator's clock.
+    phase(
+        "people on another clock",
+        &mut || {
+            robot.put("people", people("odom", 1000.0, 1));
+            robot.put("odom", odometry(now_s()));
+        },
+        &["people refused: stamped", "before it arrived"],
+    );
+    // More people in one message than --max-people (64).
+    phase(
+        "too many people",
+        &mut || {
+            robot.put("people", people("odom", now_s(), 100));
+            robot.put("odom", odometry(now_s()));
+        },
+        &["people refused: 100 in one message, at most 64"],
+    );
+    // A goal in another frame.
+    phase(
+        "a goal in the map frame",
+        &mut || {
+            let t = now_s();
+            robot.put("goal_pose", goal("map", t));
+            robot.put("people", people("odom", t, 1));
+            robot.put("odom", odometry(t));
+        },
+        &["goal refused: it is in frame \"map\""],
+    );
+    // People in another frame.
+    phase(
+        "people in base_link",
+        &mut || {
+            let t = now_s();
+            robot.put("people", people("base_link", t, 1));
+            robot.put("odom", odometry(t));
+        },
+        &["people are in frame \"base_link\""],
+    );
+
     // SIGTERM: a last zero command, then a clean exit.
-    // SAFETY: sending a signal to our own child.
-    unsafe {
-        libc::kill(serve.0.id() as i32, libc::SIGTERM);
-    }
-    let status = serve.0.wait().unwrap();
+    robot.until("driving before SIGTERM", || robot.fresh(), moving);
+    let status = serve.terminate();
     assert!(status.success(), "{status:?}");
     let mut last = None;
-    while let Ok(t) = peer.cmd.recv_timeout(Duration::from_millis(500)) {
+    while let Ok((_, t)) = robot.cmd.recv_timeout(Duration::from_millis(500)) {
         last = Some(t);
     }
     assert_eq!(last, Some(Twist::ZERO), "the last command is a stop");
+    assert_eq!(serve.next_stop_reason(within), "shutting down");
+    // The undecodable messages were counted, the refused ones too.
+    let stopped = serve.wait_log("stopped", within);
+    for counter in [
+        "undecodable",
+        "refused_odometry",
+        "refused_people",
+        "refused_goals",
+    ] {
+        let n: u64 = stopped
+            .split(&format!("{counter}="))
+            .nth(1)
+            .and_then(|v| v.split_whitespace().next()?.parse().ok())
+            .unwrap_or(0);
+        assert!(n > 0, "{counter} not counted: {stopped}");
+    }
+}
+
+/// Every bad number is refused in one line naming the flag before anything starts: the model
+/// (a file that does not exist) is not even opened.
+#[test]
+fn every_bad_number_on_the_command_line_is_refused_in_one_line_before_anything_starts() {
+    let cases: &[(&[&str], &str)] = &[
+        (&["--max-turn-rate-radps", "-1"], "--max-turn-rate-radps -1"),
+        (
+            &["--max-turn-rate-radps", "NaN"],
+            "--max-turn-rate-radps NaN",
+        ),
+        (&["--max-turn-rate-radps", "0"], "--max-turn-rate-radps 0"),
+        (&["--max-speed-mps", "-0.5"], "--max-speed-mps -0.5"),
+        (&["--max-speed-mps", "inf"], "--max-speed-mps inf"),
+        (&["--stale-periods", "inf"], "--stale-periods inf"),
+        (&["--stale-periods", "0"], "--stale-periods 0"),
+        (&["--stale-periods", "-2"], "--stale-periods -2"),
+        (&["--stale-periods", "nan"], "--stale-periods NaN"),
+        (&["--period-s", "0"], "--period-s 0"),
+        (&["--period-s", "-0.25"], "--period-s -0.25"),
+        (&["--period-s", "inf"], "--period-s inf"),
+        (&["--period-s", "NaN"], "--period-s NaN"),
+        (&["--stamp-tolerance-s", "-1"], "--stamp-tolerance-s -1"),
+        (&["--stamp-tolerance-s", "inf"], "--stamp-tolerance-s inf"),
+        (&["--decision-budget-s", "0"], "--decision-budget-s 0"),
+        (&["--decision-budget-s", "nan"], "--decision-budget-s NaN"),
+        (&["--max-people", "0"], "--max-people 0"),
+        (&["--max-people", "100000"], "--max-people 100000"),
+    ];
+    let dir = tempfile::tempdir().unwrap();
+    let missing = dir.path().join("no-such-model.fsrlm");
+    for (args, flag) in cases {
+        let out = Command::new(env!("CARGO_BIN_EXE_fsrl"))
+            .arg("serve")
+            .arg(&missing)
+            .args(["--listen", "tcp/127.0.0.1:0"])
+            .args(*args)
+            .output()
+            .unwrap();
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        let lines: Vec<&str> = stderr.lines().filter(|l| !l.trim().is_empty()).collect();
+        assert!(!out.status.success(), "{args:?} was accepted");
+        assert!(
+            out.stdout.is_empty(),
+            "{args:?}: {}",
+            String::from_utf8_lossy(&out.stdout)
+        );
+        assert_eq!(lines.len(), 1, "{args:?}: not one line:\n{stderr}");
+        assert!(
+            lines[0].starts_with("error: ") && lines[0].contains(flag),
+            "{args:?}: {stderr}"
+        );
+        assert!(
+            !stderr.contains("cannot load"),
+            "{args:?}: the model was opened"
+        );
+    }
 }
 
 #[test]

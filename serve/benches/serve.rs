@@ -78,21 +78,17 @@ fn free_port() -> u16 {
 fn input_to_command(people: usize) {
     let port = free_port();
     let opts = serve::ServeOptions {
-        model: MODEL.into(),
         name: "bench".into(),
-        style: serve::Ros2Style::Bridge { namespace: None },
-        topics: serve::Topics::default(),
-        people_format: serve::PeopleFormat::People,
         trigger: serve::Trigger::Odometry,
-        period: None,
+        // The stamps are the states' simulated time.
+        clock: serve::Clock::Odometry,
         stale_periods: 1e6,
-        limits: Default::default(),
-        robot_visible: None,
         zenoh: transport::ZenohConfig::peer(vec![format!("tcp/127.0.0.1:{port}")], vec![]),
+        ..serve::ServeOptions::new(MODEL)
     };
-    let (tx, rx) = serve::node::channel();
-    let stop = tx.clone();
-    let server = std::thread::spawn(move || serve::run(&opts, (tx, rx), || {}).unwrap());
+    let inbox = serve::Inbox::new();
+    let stop = inbox.stopper();
+    let server = std::thread::spawn(move || serve::run(&opts, inbox, || {}).unwrap());
     let cfg = transport::ZenohConfig::peer(
         vec!["tcp/127.0.0.1:0".into()],
         vec![format!("tcp/127.0.0.1:{port}")],
@@ -184,7 +180,7 @@ fn input_to_command(people: usize) {
         pct(&mut ms, 0.99),
         ms.len()
     );
-    let _ = stop.send(serve::node::Event::Shutdown);
+    stop.stop();
     let _ = server.join();
 }
 

@@ -1,16 +1,24 @@
-//! The serve loop's logic without any IO: inputs (bytes as they arrive, with the instant they
+//! The serve loop's logic without any IO: inputs (bytes as they arrive, with when they
 //! arrived) in, a command and the reason for a stop out. Every safety rule lives here:
 //!
 //! - a stop (zero command) with a reason whenever there is no usable decision: no odometry,
 //!   goal or people yet; odometry or people older than `stale_after` (two periods by default);
 //!   the goal reached (closer than the robot's radius, the simulator's rule); a goal in another
-//!   frame than odometry's (refused: there is no TF here); people in another frame; the policy
-//!   failing; shutdown;
+//!   frame than odometry's (refused: there is no TF here); people in another frame; more people
+//!   in one message than `max_people` (refused); stamps from another clock or the future
+//!   (below); a decision that took longer than its budget; the policy failing; shutdown;
+//! - stamps: with [`Clock::System`] every odometry and people stamp must lie within the
+//!   tolerance of this computer's clock when it arrives (ahead: refused; behind by more than
+//!   `stale_after` + tolerance: refused), a goal must not be stamped ahead of it; with either
+//!   clock, people must be stamped within `stale_after` + tolerance of the odometry they are
+//!   used with and the goal not after it by more than the tolerance; the episode's step count
+//!   is clamped to the model's time limit;
 //! - undecodable messages are counted per topic and the last input kept (a stop follows only
-//!   when the kept input turns stale);
+//!   when the kept input turns stale); a refused one drops the input it would have replaced
+//!   and stops the robot at once, saying why;
 //! - speed and turn-rate limits applied to the policy's command.
 
-use std::time::{Duration, Instant};
+use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
 use sim::Vec2;
 
@@ -24,14 +32,67 @@ pub enum StopReason {
     NoOdometry,
     NoGoal,
     NoPeople,
-    StaleOdometry { age_s: f64 },
-    StalePeople { age_s: f64 },
-    GoalReached { distance_m: f64 },
-    GoalFrame { goal: String, odom: String },
-    PeopleFrame { people: String, odom: String },
+    StaleOdometry {
+        age_s: f64,
+    },
+    StalePeople {
+        age_s: f64,
+    },
+    GoalReached {
+        distance_m: f64,
+    },
+    GoalFrame {
+        goal: String,
+        odom: String,
+    },
+    PeopleFrame {
+        people: String,
+        odom: String,
+    },
+    /// `topic`'s stamp is ahead of this computer's clock by more than the tolerance.
+    StampAhead {
+        topic: &'static str,
+        ahead_s: f64,
+    },
+    /// `topic`'s stamp is older than the staleness limit plus the tolerance on arrival.
+    StampBehind {
+        topic: &'static str,
+        behind_s: f64,
+    },
+    /// `topic`'s stamp (people, goal) is `offset_s` from the odometry's, beyond what one clock
+    /// allows.
+    ClocksDisagree {
+        topic: &'static str,
+        offset_s: f64,
+    },
+    TooManyPeople {
+        count: usize,
+        max: usize,
+    },
+    DecisionTooSlow {
+        took_s: f64,
+        budget_s: f64,
+    },
     PolicyFailed(String),
     ModelNotLoaded(String),
     Shutdown,
+}
+
+/// A [`StopReason`]'s variant and topic: see [`StopReason::kind`].
+pub type StopKind = (std::mem::Discriminant<StopReason>, &'static str);
+
+impl StopReason {
+    /// What kind of stop this is (the variant and its topic), without its changing numbers:
+    /// the loop logs a stop when its kind changes, not every period.
+    pub fn kind(&self) -> StopKind {
+        let topic = match self {
+            StopReason::StampAhead { topic, .. }
+            | StopReason::StampBehind { topic, .. }
+            | StopReason::ClocksDisagree { topic, .. } => topic,
+            _ => "",
+        };
+        (std::mem::discriminant(self), topic)
+    }
 }
 
 impl std::fmt::Display for StopReason {
@@ -57,11 +118,45 @@ impl std::fmt::Display for StopReason {
                 f,
                 "people are in frame {people:?}, odometry in {odom:?} (no TF: track people in the odometry frame)"
             ),
+            StopReason::StampAhead { topic, ahead_s } => write!(
+                f,
+                "{topic} refused: stamped {ahead_s:.3} s ahead of this computer's clock (another clock or the future: synchronise the clocks, or --use-sim-time for a simulator's)"
+            ),
+            StopReason::StampBehind { topic, behind_s } => write!(
+                f,
+                "{topic} refused: stamped {behind_s:.3} s before it arrived (another clock, or late: synchronise the clocks, or --use-sim-time for a simulator's)"
+            ),
+            StopReason::ClocksDisagree { topic, offset_s } => write!(
+                f,
+                "{topic} stamped {offset_s:+.3} s from the odometry's stamp (not the same clock, or one of them late)"
+            ),
+            StopReason::TooManyPeople { count, max } => write!(
+                f,
+                "people refused: {count} in one message, at most {max} (--max-people)"
+            ),
+            StopReason::DecisionTooSlow { took_s, budget_s } => write!(
+                f,
+                "decision dropped: it took {:.1} ms, over the budget of {:.1} ms (--decision-budget-s)",
+                took_s * 1e3,
+                budget_s * 1e3
+            ),
             StopReason::PolicyFailed(e) => write!(f, "the policy failed: {e}"),
             StopReason::ModelNotLoaded(e) => write!(f, "the model did not load: {e}"),
             StopReason::Shutdown => write!(f, "shutting down"),
         }
     }
+}
+
+/// Whose clock the stamps are on.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Clock {
+    /// This computer's (ROS' default): odometry and people stamps are checked against it on
+    /// arrival, within the tolerance.
+    #[default]
+    System,
+    /// The odometry's (`--use-sim-time`: a simulator, a bag): people and goal stamps are checked
+    /// against the odometry's only.
+    Odometry,
 }
 
 /// Settings of the loop.
@@ -70,6 +165,51 @@ pub struct Safety {
     /// Inputs older than this stop the robot (default two control periods).
     pub stale_after: Duration,
     pub limits: Limits,
+    pub clock: Clock,
+    /// How far stamps may be from the clock they are checked against.
+    pub stamp_tolerance: Duration,
+    /// Most people one message may hold (a decision's time grows with them).
+    pub max_people: usize,
+    /// Longest a decision may take; a slower one is dropped for a stop.
+    pub decision_budget: Duration,
+}
+
+impl Safety {
+    /// The loop's defaults around a staleness limit: limits none, this computer's clock with
+    /// 0.5 s of tolerance, [`DEFAULT_MAX_PEOPLE`], a budget of 100 ms.
+    pub fn new(stale_after: Duration) -> Self {
+        Self {
+            stale_after,
+            limits: Limits::default(),
+            clock: Clock::System,
+            stamp_tolerance: Duration::from_millis(500),
+            max_people: DEFAULT_MAX_PEOPLE,
+            decision_budget: Duration::from_millis(100),
+        }
+    }
+}
+
+/// Most people in one message by default: a decision with 64 people takes ~5 ms (against
+/// 0.5 ms with 5), far inside a 0.25 s period.
+pub const DEFAULT_MAX_PEOPLE: usize = 64;
+
+/// When an input arrived: the monotonic instant (staleness) and this computer's clock in
+/// seconds since the Unix epoch (stamps).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Arrival {
+    pub at: Instant,
+    pub unix_s: f64,
+}
+
+impl Arrival {
+    pub fn now() -> Self {
+        Self {
+            at: Instant::now(),
+            unix_s: SystemTime::now()
+                .duration_since(UNIX_EPOCH)
+                .map_or(0.0, |d| d.as_secs_f64()),
+        }
+    }
 }
 
 /// Counters of what arrived.
@@ -82,8 +222,14 @@ pub struct Counters {
     pub undecodable_people: u64,
     pub undecodable_goals: u64,
     pub refused_goals: u64,
+    /// Odometry refused for its stamp.
+    pub refused_odometry: u64,
+    /// People messages refused for their stamp or their count.
+    pub refused_people: u64,
     pub decisions: u64,
     pub stops: u64,
+    /// Decisions dropped for taking longer than the budget (counted in `stops` too).
+    pub too_slow: u64,
 }
 
 impl Counters {
@@ -136,7 +282,8 @@ pub enum Intake {
     Accepted,
     /// Could not be decoded (counted); the previous input is kept.
     Undecodable(String),
-    /// A goal in another frame (counted; the previous goal is dropped, the robot stops).
+    /// Refused (counted): a goal in another frame, a stamp from another clock, too many
+    /// people. The input it would have replaced is dropped, the robot stops.
     Refused(StopReason),
 }
 
@@ -147,7 +294,10 @@ pub struct Controller {
     odom: Option<OdomIn>,
     people: Option<(PeopleObs, Instant)>,
     goal: Option<GoalIn>,
+    /// Why the goal, the odometry, the people were last refused (until a good one comes).
     refusal: Option<StopReason>,
+    odom_refusal: Option<StopReason>,
+    people_refusal: Option<StopReason>,
     counters: Counters,
 }
 
@@ -173,6 +323,8 @@ impl Controller {
             people: None,
             goal: None,
             refusal: None,
+            odom_refusal: None,
+            people_refusal: None,
             counters: Counters::default(),
         }
     }
@@ -181,8 +333,42 @@ impl Controller {
         self.counters
     }
 
-    /// An odometry message arrived at `at`.
-    pub fn on_odometry(&mut self, bytes: &[u8], at: Instant) -> Intake {
+    pub fn safety(&self) -> &Safety {
+        &self.safety
+    }
+
+    /// With [`Clock::System`], why a stamp of `topic` arriving at `arrival` is refused: ahead
+    /// of this computer's clock by more than the tolerance, or (`old_ok` false) older than
+    /// the staleness limit plus the tolerance.
+    fn check_stamp(
+        &self,
+        topic: &'static str,
+        stamp: Time,
+        arrival: Arrival,
+        old_ok: bool,
+    ) -> Option<StopReason> {
+        if self.safety.clock != Clock::System {
+            return None;
+        }
+        let tolerance_s = self.safety.stamp_tolerance.as_secs_f64();
+        let lag_s = arrival.unix_s - stamp.as_secs_f64();
+        if lag_s < -tolerance_s {
+            return Some(StopReason::StampAhead {
+                topic,
+                ahead_s: -lag_s,
+            });
+        }
+        if !old_ok && lag_s > self.safety.stale_after.as_secs_f64() + tolerance_s {
+            return Some(StopReason::StampBehind {
+                topic,
+                behind_s: lag_s,
+            });
+        }
+        None
+    }
+
+    /// An odometry message arrived.
+    pub fn on_odometry(&mut self, bytes: &[u8], arrival: Arrival) -> Intake {
         let o: Odometry = match msg::decode(bytes) {
             Ok(o) => o,
             Err(e) => {
@@ -204,7 +390,14 @@ impl Controller {
             self.counters.undecodable_odometry += 1;
             return Intake::Undecodable("odometry with values that are not finite".into());
         }
+        if let Some(reason) = self.check_stamp("odometry", o.header.stamp, arrival, false) {
+            self.counters.refused_odometry += 1;
+            self.odom = None;
+            self.odom_refusal = Some(reason.clone());
+            return Intake::Refused(reason);
+        }
         self.counters.odometry += 1;
+        self.odom_refusal = None;
         if let Some(g) = &mut self.goal {
             if g.origin.is_none() {
                 g.origin = Some(o.header.stamp);
@@ -214,7 +407,7 @@ impl Controller {
             frame: o.header.frame_id,
             stamp: o.header.stamp,
             robot,
-            at,
+            at: arrival.at,
         });
         self.check_goal_frame()
     }
@@ -235,23 +428,37 @@ impl Controller {
         Intake::Accepted
     }
 
-    /// A people message arrived at `at`.
-    pub fn on_people(&mut self, bytes: &[u8], at: Instant) -> Intake {
-        match people::decode(self.format, bytes) {
-            Ok(p) => {
-                self.counters.people += 1;
-                self.people = Some((p, at));
-                Intake::Accepted
-            }
+    /// A people message arrived.
+    pub fn on_people(&mut self, bytes: &[u8], arrival: Arrival) -> Intake {
+        let p = match people::decode(self.format, bytes) {
+            Ok(p) => p,
             Err(e) => {
                 self.counters.undecodable_people += 1;
-                Intake::Undecodable(e.to_string())
+                return Intake::Undecodable(e.to_string());
             }
+        };
+        let refused = if p.people.len() > self.safety.max_people {
+            Some(StopReason::TooManyPeople {
+                count: p.people.len(),
+                max: self.safety.max_people,
+            })
+        } else {
+            self.check_stamp("people", p.header.stamp, arrival, false)
+        };
+        if let Some(reason) = refused {
+            self.counters.refused_people += 1;
+            self.people = None;
+            self.people_refusal = Some(reason.clone());
+            return Intake::Refused(reason);
         }
+        self.counters.people += 1;
+        self.people_refusal = None;
+        self.people = Some((p, arrival.at));
+        Intake::Accepted
     }
 
     /// A goal arrived. A new goal (another position or stamp) restarts the episode clock.
-    pub fn on_goal(&mut self, bytes: &[u8]) -> Intake {
+    pub fn on_goal(&mut self, bytes: &[u8], arrival: Arrival) -> Intake {
         let g: PoseStamped = match msg::decode(bytes) {
             Ok(g) => g,
             Err(e) => {
@@ -263,6 +470,16 @@ impl Controller {
         if !(p.x.is_finite() && p.y.is_finite()) {
             self.counters.undecodable_goals += 1;
             return Intake::Undecodable("goal with values that are not finite".into());
+        }
+        // A goal set long ago is a goal; one from the future is another clock's.
+        if let Some(reason) = (!g.header.stamp.is_zero())
+            .then(|| self.check_stamp("goal", g.header.stamp, arrival, true))
+            .flatten()
+        {
+            self.counters.refused_goals += 1;
+            self.goal = None;
+            self.refusal = Some(reason.clone());
+            return Intake::Refused(reason);
         }
         self.counters.goals += 1;
         let position = Vec2::new(p.x, p.y);
@@ -296,13 +513,25 @@ impl Controller {
         }
     }
 
+    /// The first instant at which an input held now turns stale (the loop wakes then, between
+    /// its ticks, to send the stop at once).
+    pub fn stale_at(&self) -> Option<Instant> {
+        let odom = self.odom.as_ref().map(|o| o.at);
+        let people = self.people.as_ref().map(|(_, at)| *at);
+        [odom, people]
+            .into_iter()
+            .flatten()
+            .min()
+            .map(|at| at + self.safety.stale_after)
+    }
+
     /// The observation at `now`, or why there is none.
     pub fn observation(&self, now: Instant) -> Result<Observation, StopReason> {
         let Some(o) = &self.odom else {
-            return Err(StopReason::NoOdometry);
+            return Err(self.odom_refusal.clone().unwrap_or(StopReason::NoOdometry));
         };
         let age = now.saturating_duration_since(o.at);
-        if age > self.safety.stale_after {
+        if age >= self.safety.stale_after {
             return Err(StopReason::StaleOdometry {
                 age_s: age.as_secs_f64(),
             });
@@ -311,10 +540,10 @@ impl Controller {
             return Err(self.refusal.clone().unwrap_or(StopReason::NoGoal));
         };
         let Some((p, at)) = &self.people else {
-            return Err(StopReason::NoPeople);
+            return Err(self.people_refusal.clone().unwrap_or(StopReason::NoPeople));
         };
         let age = now.saturating_duration_since(*at);
-        if age > self.safety.stale_after {
+        if age >= self.safety.stale_after {
             return Err(StopReason::StalePeople {
                 age_s: age.as_secs_f64(),
             });
@@ -324,6 +553,24 @@ impl Controller {
                 people: p.header.frame_id.clone(),
                 odom: o.frame.clone(),
             });
+        }
+        let tolerance_s = self.safety.stamp_tolerance.as_secs_f64();
+        let odom_s = o.stamp.as_secs_f64();
+        let offset_s = p.header.stamp.as_secs_f64() - odom_s;
+        if offset_s.abs() > self.safety.stale_after.as_secs_f64() + tolerance_s {
+            return Err(StopReason::ClocksDisagree {
+                topic: "people",
+                offset_s,
+            });
+        }
+        if let Some(origin) = g.origin {
+            let offset_s = origin.as_secs_f64() - odom_s;
+            if offset_s > tolerance_s {
+                return Err(StopReason::ClocksDisagree {
+                    topic: "goal",
+                    offset_s,
+                });
+            }
         }
         Ok(Observation {
             robot: o.robot,
@@ -337,6 +584,10 @@ impl Controller {
     pub fn step(&mut self, policy: &mut ServedPolicy, now: Instant) -> Output {
         let out = self.decide(policy, now);
         match &out.stop {
+            Some(StopReason::DecisionTooSlow { .. }) => {
+                self.counters.stops += 1;
+                self.counters.too_slow += 1;
+            }
             Some(_) => self.counters.stops += 1,
             None => self.counters.decisions += 1,
         }
@@ -352,8 +603,17 @@ impl Controller {
         if distance_m < policy.sim_config().robot.radius_m {
             return Output::stop(StopReason::GoalReached { distance_m });
         }
-        obs.steps = self.steps(policy.period_s());
-        match policy.decide(&obs) {
+        obs.steps = self.steps(policy.period_s()).min(policy.step_limit());
+        let started = Instant::now();
+        let decided = policy.decide(&obs);
+        let took = started.elapsed();
+        match decided {
+            Ok(_) if took > self.safety.decision_budget => {
+                Output::stop(StopReason::DecisionTooSlow {
+                    took_s: took.as_secs_f64(),
+                    budget_s: self.safety.decision_budget.as_secs_f64(),
+                })
+            }
             Ok(d) => Output {
                 command: d.command.limited(&self.safety.limits),
                 decision: Some(d),
@@ -363,7 +623,8 @@ impl Controller {
         }
     }
 
-    /// Control periods since the goal: (odometry stamp − goal origin) / period, rounded.
+    /// Control periods since the goal: (odometry stamp − goal origin) / period, rounded, at
+    /// most `u32::MAX` (the policy clamps it further to the model's time limit).
     fn steps(&self, period_s: f64) -> u32 {
         let (Some(o), Some(g)) = (&self.odom, &self.goal) else {
             return 0;
@@ -435,14 +696,20 @@ mod tests {
         .unwrap()
     }
 
+    /// On the odometry's clock (the stamps here are a simulator's).
     fn controller() -> Controller {
         Controller::new(
             Safety {
-                stale_after: Duration::from_millis(500),
-                limits: Limits::default(),
+                clock: Clock::Odometry,
+                ..Safety::new(Duration::from_millis(500))
             },
             PeopleFormat::People,
         )
+    }
+
+    /// Arrived at `at` (this computer's clock unused on the odometry's).
+    fn arr(at: Instant) -> Arrival {
+        Arrival { at, unix_s: 0.0 }
     }
 
     #[test]
@@ -451,10 +718,10 @@ mod tests {
         let mut c = controller();
         let t0 = Instant::now();
         assert_eq!(c.step(&mut pol, t0).stop, Some(StopReason::NoOdometry));
-        assert_eq!(c.on_goal(&goal("odom", 10.0)), Intake::Accepted);
-        c.on_odometry(&odom("odom", 10.0, -4.0), t0);
+        assert_eq!(c.on_goal(&goal("odom", 10.0), arr(t0)), Intake::Accepted);
+        c.on_odometry(&odom("odom", 10.0, -4.0), arr(t0));
         assert_eq!(c.step(&mut pol, t0).stop, Some(StopReason::NoPeople));
-        c.on_people(&people("odom", 10.0), t0);
+        c.on_people(&people("odom", 10.0), arr(t0));
         assert!(c.synced());
         let out = c.step(&mut pol, t0);
         assert_eq!(out.stop, None);
@@ -462,7 +729,7 @@ mod tests {
 
         // Odometry stops: a stop once it is older than two periods.
         let later = t0 + Duration::from_millis(600);
-        c.on_people(&people("odom", 10.5), later);
+        c.on_people(&people("odom", 10.5), arr(later));
         let out = c.step(&mut pol, later);
         assert!(
             matches!(out.stop, Some(StopReason::StaleOdometry { .. })),
@@ -472,13 +739,13 @@ mod tests {
         // People stop: the same.
         c.on_odometry(
             &odom("odom", 10.6, -3.9),
-            later + Duration::from_millis(400),
+            arr(later + Duration::from_millis(400)),
         );
         let out = c.step(&mut pol, later + Duration::from_millis(400));
         assert_eq!(out.stop, None);
         c.on_odometry(
             &odom("odom", 11.0, -3.8),
-            later + Duration::from_millis(700),
+            arr(later + Duration::from_millis(700)),
         );
         let out = c.step(&mut pol, later + Duration::from_millis(700));
         assert!(
@@ -492,18 +759,18 @@ mod tests {
         let mut pol = policy();
         let mut c = controller();
         let t0 = Instant::now();
-        c.on_goal(&goal("odom", 1.0));
-        c.on_odometry(&odom("odom", 1.0, -4.0), t0);
-        c.on_people(&people("odom", 1.0), t0);
+        c.on_goal(&goal("odom", 1.0), arr(t0));
+        c.on_odometry(&odom("odom", 1.0, -4.0), arr(t0));
+        c.on_people(&people("odom", 1.0), arr(t0));
         assert!(matches!(
-            c.on_odometry(b"garbage", t0),
+            c.on_odometry(b"garbage", arr(t0)),
             Intake::Undecodable(_)
         ));
         assert!(matches!(
-            c.on_people(&[0, 1, 0, 0, 9], t0),
+            c.on_people(&[0, 1, 0, 0, 9], arr(t0)),
             Intake::Undecodable(_)
         ));
-        assert!(matches!(c.on_goal(&[]), Intake::Undecodable(_)));
+        assert!(matches!(c.on_goal(&[], arr(t0)), Intake::Undecodable(_)));
         let n = c.counters();
         assert_eq!(
             (
@@ -515,7 +782,7 @@ mod tests {
         );
         assert_eq!(c.step(&mut pol, t0).stop, None);
         // Garbage alone keeps nothing fresh: a stop when the kept input turns stale.
-        c.on_odometry(b"more garbage", t0 + Duration::from_secs(1));
+        c.on_odometry(b"more garbage", arr(t0 + Duration::from_secs(1)));
         assert!(c.step(&mut pol, t0 + Duration::from_secs(1)).stop.is_some());
     }
 
@@ -524,10 +791,10 @@ mod tests {
         let mut pol = policy();
         let mut c = controller();
         let t0 = Instant::now();
-        c.on_odometry(&odom("odom", 1.0, -4.0), t0);
-        c.on_people(&people("odom", 1.0), t0);
+        c.on_odometry(&odom("odom", 1.0, -4.0), arr(t0));
+        c.on_people(&people("odom", 1.0), arr(t0));
         assert!(matches!(
-            c.on_goal(&goal("map", 1.0)),
+            c.on_goal(&goal("map", 1.0), arr(t0)),
             Intake::Refused(StopReason::GoalFrame { .. })
         ));
         let out = c.step(&mut pol, t0);
@@ -537,17 +804,17 @@ mod tests {
         );
         assert!(out.stop.unwrap().to_string().contains("no TF"));
         assert_eq!(c.counters().refused_goals, 1);
-        c.on_goal(&goal("odom", 1.0));
+        c.on_goal(&goal("odom", 1.0), arr(t0));
         assert_eq!(c.step(&mut pol, t0).stop, None);
-        c.on_odometry(&odom("odom", 2.0, 3.9), t0);
-        c.on_people(&people("odom", 2.0), t0);
+        c.on_odometry(&odom("odom", 2.0, 3.9), arr(t0));
+        c.on_people(&people("odom", 2.0), arr(t0));
         assert!(matches!(
             c.step(&mut pol, t0).stop,
             Some(StopReason::GoalReached { .. })
         ));
         // People in another frame: a stop, said why.
-        c.on_odometry(&odom("odom", 2.25, 0.0), t0);
-        c.on_people(&people("base_link", 2.25), t0);
+        c.on_odometry(&odom("odom", 2.25, 0.0), arr(t0));
+        c.on_people(&people("base_link", 2.25), arr(t0));
         assert!(matches!(
             c.step(&mut pol, t0).stop,
             Some(StopReason::PeopleFrame { .. })
@@ -558,14 +825,217 @@ mod tests {
     fn the_episode_clock_counts_periods_since_the_goal() {
         let mut c = controller();
         let t0 = Instant::now();
-        c.on_goal(&goal("odom", 100.0));
-        c.on_odometry(&odom("odom", 100.0 + 7.0 * 0.25, -4.0), t0);
+        c.on_goal(&goal("odom", 100.0), arr(t0));
+        c.on_odometry(&odom("odom", 100.0 + 7.0 * 0.25, -4.0), arr(t0));
         assert_eq!(c.steps(0.25), 7);
         // An unstamped goal starts the clock at the odometry's stamp.
         let mut c = controller();
-        c.on_odometry(&odom("odom", 50.0, -4.0), t0);
-        c.on_goal(&goal("odom", 0.0));
-        c.on_odometry(&odom("odom", 51.0, -4.0), t0);
+        c.on_odometry(&odom("odom", 50.0, -4.0), arr(t0));
+        c.on_goal(&goal("odom", 0.0), arr(t0));
+        c.on_odometry(&odom("odom", 51.0, -4.0), arr(t0));
         assert_eq!(c.steps(0.25), 4);
+    }
+
+    /// On this computer's clock, at most `max_people` in a message.
+    fn on_system_clock(max_people: usize) -> Controller {
+        Controller::new(
+            Safety {
+                max_people,
+                ..Safety::new(Duration::from_millis(500))
+            },
+            PeopleFormat::People,
+        )
+    }
+
+    #[test]
+    fn stamps_from_another_clock_or_the_future_are_refused_with_their_reason() {
+        let mut pol = policy();
+        let mut c = on_system_clock(DEFAULT_MAX_PEOPLE);
+        let t0 = Instant::now();
+        let now_s = 1.7e9;
+        let at = Arrival {
+            at: t0,
+            unix_s: now_s,
+        };
+        c.on_goal(&goal("odom", now_s - 60.0), at);
+        c.on_people(&people("odom", now_s), at);
+        assert_eq!(
+            c.on_odometry(&odom("odom", now_s, -4.0), at),
+            Intake::Accepted
+        );
+        assert_eq!(c.step(&mut pol, t0).stop, None);
+        // Odometry an hour ahead (another clock, or the future): refused, the robot stops
+        // at once and says why.
+        let r = c.on_odometry(&odom("odom", now_s + 3600.0, -4.0), at);
+        assert!(
+            matches!(r, Intake::Refused(StopReason::StampAhead { topic: "odometry", ahead_s }) if ahead_s > 3599.0),
+            "{r:?}"
+        );
+        let stop = c.step(&mut pol, t0).stop.unwrap();
+        assert!(
+            stop.to_string().contains("ahead of this computer's clock"),
+            "{stop}"
+        );
+        // Odometry on a simulator's clock (stamped near 0): refused as too old.
+        let r = c.on_odometry(&odom("odom", 100.0, -4.0), at);
+        assert!(
+            matches!(r, Intake::Refused(StopReason::StampBehind { .. })),
+            "{r:?}"
+        );
+        assert!(c
+            .step(&mut pol, t0)
+            .stop
+            .unwrap()
+            .to_string()
+            .contains("before it arrived"));
+        // Within the tolerance (0.3 s ahead, 0.8 s behind with 0.5 s stale + 0.5 s): fine.
+        assert_eq!(
+            c.on_odometry(&odom("odom", now_s + 0.3, -4.0), at),
+            Intake::Accepted
+        );
+        assert_eq!(
+            c.on_odometry(&odom("odom", now_s - 0.8, -4.0), at),
+            Intake::Accepted
+        );
+        assert_eq!(c.step(&mut pol, t0).stop, None);
+        // People from the future, a goal from the future: refused the same way.
+        let r = c.on_people(&people("odom", now_s + 10.0), at);
+        assert!(matches!(
+            r,
+            Intake::Refused(StopReason::StampAhead {
+                topic: "people",
+                ..
+            })
+        ));
+        assert!(matches!(
+            c.step(&mut pol, t0).stop,
+            Some(StopReason::StampAhead {
+                topic: "people",
+                ..
+            })
+        ));
+        c.on_people(&people("odom", now_s), at);
+        let r = c.on_goal(&goal("odom", now_s + 10.0), at);
+        assert!(matches!(
+            r,
+            Intake::Refused(StopReason::StampAhead { topic: "goal", .. })
+        ));
+        assert!(matches!(
+            c.step(&mut pol, t0).stop,
+            Some(StopReason::StampAhead { topic: "goal", .. })
+        ));
+        let n = c.counters();
+        assert_eq!(
+            (n.refused_odometry, n.refused_people, n.refused_goals),
+            (2, 1, 1)
+        );
+        // A goal set an hour ago is a goal.
+        assert_eq!(
+            c.on_goal(&goal("odom", now_s - 3600.0), at),
+            Intake::Accepted
+        );
+        assert_eq!(c.step(&mut pol, t0).stop, None);
+    }
+
+    #[test]
+    fn on_the_odometrys_clock_people_and_goal_must_keep_to_it() {
+        let mut pol = policy();
+        let mut c = controller();
+        let t0 = Instant::now();
+        c.on_goal(&goal("odom", 1000.0), arr(t0));
+        c.on_odometry(&odom("odom", 1000.0, -4.0), arr(t0));
+        // People stamped on another clock than the odometry's.
+        c.on_people(&people("odom", 10.0), arr(t0));
+        let stop = c.step(&mut pol, t0).stop.unwrap();
+        assert!(
+            matches!(stop, StopReason::ClocksDisagree { topic: "people", offset_s } if offset_s < -989.0),
+            "{stop:?}"
+        );
+        assert!(stop.to_string().contains("from the odometry's stamp"));
+        c.on_people(&people("odom", 1000.0), arr(t0));
+        assert_eq!(c.step(&mut pol, t0).stop, None);
+        // A goal stamped after the odometry by more than the tolerance.
+        c.on_goal(&goal("odom", 2000.0), arr(t0));
+        assert!(matches!(
+            c.step(&mut pol, t0).stop,
+            Some(StopReason::ClocksDisagree { topic: "goal", .. })
+        ));
+    }
+
+    #[test]
+    fn too_many_people_are_refused_and_a_slow_decision_is_dropped() {
+        let mut pol = policy();
+        let mut c = controller();
+        c.safety.max_people = 3;
+        let t0 = Instant::now();
+        c.on_goal(&goal("odom", 1.0), arr(t0));
+        c.on_odometry(&odom("odom", 1.0, -4.0), arr(t0));
+        c.on_people(&people("odom", 1.0), arr(t0));
+        assert_eq!(c.step(&mut pol, t0).stop, None);
+        let p = PersonObs::tracked(Vec2::new(2.0, 0.0), Vec2::new(-0.5, 0.0));
+        let crowd = encode(&People {
+            header: header("odom", 1.0),
+            people: (0..4)
+                .map(|i| person_with_tags(i.to_string(), &p))
+                .collect(),
+        })
+        .unwrap();
+        let r = c.on_people(&crowd, arr(t0));
+        assert_eq!(
+            r,
+            Intake::Refused(StopReason::TooManyPeople { count: 4, max: 3 })
+        );
+        let stop = c.step(&mut pol, t0).stop.unwrap();
+        assert!(
+            stop.to_string().contains("4 in one message, at most 3"),
+            "{stop}"
+        );
+        assert_eq!(c.counters().refused_people, 1);
+        // A decision over its budget is not sent.
+        c.on_people(&people("odom", 1.0), arr(t0));
+        c.safety.decision_budget = Duration::from_nanos(1);
+        let out = c.step(&mut pol, t0);
+        assert!(
+            matches!(out.stop, Some(StopReason::DecisionTooSlow { .. })),
+            "{out:?}"
+        );
+        assert_eq!(out.command, Command::STOP);
+        assert_eq!(c.counters().too_slow, 1);
+    }
+
+    #[test]
+    fn the_stale_instant_is_the_oldest_inputs_and_staleness_starts_there() {
+        let mut c = controller();
+        let t0 = Instant::now();
+        assert_eq!(c.stale_at(), None);
+        c.on_odometry(
+            &odom("odom", 1.0, -4.0),
+            arr(t0 + Duration::from_millis(100)),
+        );
+        c.on_people(&people("odom", 1.0), arr(t0));
+        assert_eq!(c.stale_at(), Some(t0 + Duration::from_millis(500)));
+        c.on_goal(&goal("odom", 1.0), arr(t0));
+        let at = c.stale_at().unwrap();
+        assert!(matches!(
+            c.observation(at),
+            Err(StopReason::StalePeople { .. })
+        ));
+        assert!(c.observation(at - Duration::from_millis(1)).is_ok());
+    }
+
+    #[test]
+    fn a_step_count_from_a_goal_on_another_clock_is_clamped() {
+        let mut pol = policy();
+        let mut c = controller();
+        let t0 = Instant::now();
+        // The goal stamped at the epoch's first nanosecond, the odometry at i32::MAX s: the
+        // step count would be 8.6e9 periods.
+        c.on_goal(&goal("odom", 1e-9), arr(t0));
+        c.on_odometry(&odom("odom", i32::MAX as f64, -4.0), arr(t0));
+        c.on_people(&people("odom", i32::MAX as f64), arr(t0));
+        assert_eq!(c.steps(pol.period_s()), u32::MAX);
+        let out = c.step(&mut pol, t0);
+        assert_eq!(out.stop, None);
+        assert_eq!(pol.step_limit(), 100);
     }
 }

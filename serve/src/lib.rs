@@ -8,10 +8,13 @@
 //!   or `pedsim_msgs/AgentStates`;
 //! - [`served`]: [`served::ServedPolicy`], a model file's policy deciding from an observed state
 //!   through the evaluator's own lookahead (same state, same action as `fsrl eval`);
-//! - [`control`]: the loop's logic without IO: staleness, goal and frame checks, limits, the
-//!   reason for every zero command, counting of undecodable input;
-//! - [`node`]: `fsrl serve` on zenoh ([`node::run`]): subscribers, the command publisher, the
-//!   queryable `fsrl/serve/<name>/act` (MessagePack, `proto::serve`), liveliness;
+//! - [`control`]: the loop's logic without IO: staleness, goal and frame checks, stamps against
+//!   the clock and each other, the people cap, the decision budget, limits, the reason for
+//!   every zero command, counting of undecodable and refused input;
+//! - [`node`]: `fsrl serve` on zenoh ([`node::run`]): latest-value slots for the inputs, the
+//!   loop that takes its deadline first, the command publisher (congestion control `Drop`),
+//!   the queryable `fsrl/serve/<name>/act` (MessagePack, `proto::serve`) behind a bounded
+//!   queue and its own worker, liveliness;
 //! - [`standin`]: `fsrl sim --as-robot` ([`standin::run`]).
 //!
 //! Depends on `sim`, `policy`, `learner` (model files), `proto` and `transport` (zenoh
@@ -25,6 +28,7 @@ pub mod ros2;
 pub mod served;
 pub mod standin;
 
-pub use node::{run, ServeError, ServeOptions, Topics, Trigger};
+pub use control::Clock;
+pub use node::{run, Inbox, ServeError, ServeOptions, Stopper, Topics, Trigger};
 pub use people::PeopleFormat;
 pub use ros2::{Distro, Ros2Style};

@@ -1,9 +1,20 @@
 //! `fsrl serve` on zenoh: subscribers for odometry, goal and people, the command publisher,
 //! the queryable, rmw_zenoh's liveliness tokens and attachments, and the loop over one closed
 //! [`Event`] enum on the calling thread.
+//!
+//! What keeps the loop on time whatever arrives: each input topic has one latest-value slot
+//! ([`Inbox`]: a newer message replaces an older one not read yet, nothing queues); the loop
+//! takes the deadline (its tick, or the instant an input turns stale) before any input, so the
+//! staleness check and the stop run every period under any flood; a people message holding
+//! more than `max_people` is refused and a decision over its budget dropped, so no one step
+//! takes long; `cmd_vel` is published with congestion control `Drop`, so a subscriber that
+//! does not read cannot block it; and queries go through a bounded queue ([`QUERY_QUEUE`],
+//! refused with a reply beyond, counted) to a worker thread with its own copy of the policy,
+//! so neither a query flood nor an asker that does not read its replies reaches the loop.
 
+use std::collections::VecDeque;
 use std::path::PathBuf;
-use std::sync::mpsc::{self, Receiver, RecvTimeoutError, Sender};
+use std::sync::{Arc, Condvar, Mutex, MutexGuard, PoisonError};
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
 use zenoh::bytes::ZBytes;
@@ -13,7 +24,9 @@ use zenoh::qos::CongestionControl;
 use zenoh::query::{Query, Queryable};
 use zenoh::{Session, Wait};
 
-use crate::control::{Controller, Intake, Output, Safety, StopReason};
+use crate::control::{
+    Arrival, Clock, Controller, Intake, Output, Safety, StopKind, StopReason, DEFAULT_MAX_PEOPLE,
+};
 use crate::msg::{
     self, AgentStates, Odometry, People, PoseStamped, RosMsg, TrackedPersons, Twist, Vector3,
 };
@@ -61,7 +74,7 @@ pub enum Trigger {
     Odometry,
 }
 
-/// Everything `fsrl serve` needs.
+/// Everything `fsrl serve` needs; [`ServeOptions::check`] says what is wrong with it.
 #[derive(Debug, Clone)]
 pub struct ServeOptions {
     pub model: PathBuf,
@@ -71,13 +84,108 @@ pub struct ServeOptions {
     pub topics: Topics,
     pub people_format: PeopleFormat,
     pub trigger: Trigger,
-    /// Control period; default the model's step.
-    pub period: Option<Duration>,
+    /// Control period in seconds; default the model's step.
+    pub period_s: Option<f64>,
     /// Stale after this many periods (default 2).
     pub stale_periods: f64,
     pub limits: Limits,
+    /// Whose clock the stamps are on (default this computer's).
+    pub clock: Clock,
+    /// How far a stamp may be from the clock it is checked against, in seconds.
+    pub stamp_tolerance_s: f64,
+    /// Most people in one message (and in one query); beyond: refused, a stop.
+    pub max_people: usize,
+    /// Longest a decision may take, in seconds; default half the period.
+    pub decision_budget_s: Option<f64>,
     pub robot_visible: Option<bool>,
     pub zenoh: transport::ZenohConfig,
+}
+
+/// Longest control period accepted, in seconds.
+pub const MAX_PERIOD_S: f64 = 60.0;
+/// Most periods the staleness limit may span.
+pub const MAX_STALE_PERIODS: f64 = 1.0e6;
+/// Largest stamp tolerance accepted, in seconds.
+pub const MAX_STAMP_TOLERANCE_S: f64 = 3600.0;
+/// Most queries waiting for the policy; a query beyond is refused at once (counted).
+pub const QUERY_QUEUE: usize = 32;
+/// Most bytes of queries waiting.
+pub const QUERY_QUEUE_BYTES: usize = 4 << 20;
+
+impl ServeOptions {
+    /// The defaults of `fsrl serve MODEL`: bridge keys, default topics, people_msgs, the
+    /// timer, the model's period, stale after 2 periods, no limits, this computer's clock
+    /// with 0.5 s of tolerance, [`DEFAULT_MAX_PEOPLE`], half a period of decision budget,
+    /// a peer listening on loopback.
+    pub fn new(model: impl Into<PathBuf>) -> Self {
+        Self {
+            model: model.into(),
+            name: "fsrl".into(),
+            style: Ros2Style::Bridge { namespace: None },
+            topics: Topics::default(),
+            people_format: PeopleFormat::People,
+            trigger: Trigger::Timer,
+            period_s: None,
+            stale_periods: 2.0,
+            limits: Limits::default(),
+            clock: Clock::System,
+            stamp_tolerance_s: 0.5,
+            max_people: DEFAULT_MAX_PEOPLE,
+            decision_budget_s: None,
+            robot_visible: None,
+            zenoh: transport::ZenohConfig::default(),
+        }
+    }
+
+    /// Every problem of the limits, periods and names, in one line (nothing is opened or
+    /// loaded): negative, zero where it means nothing, NaN and infinite numbers are refused.
+    pub fn check(&self) -> Result<(), ServeError> {
+        let mut problems = Vec::new();
+        let positive = |flag: &str, v: f64, max: f64, problems: &mut Vec<String>| {
+            if !(v.is_finite() && v > 0.0 && v <= max) {
+                problems.push(format!(
+                    "{flag} {v}: must be positive, finite and at most {max}"
+                ));
+            }
+        };
+        if let Some(p) = self.period_s {
+            positive("--period-s", p, MAX_PERIOD_S, &mut problems);
+        }
+        positive(
+            "--stale-periods",
+            self.stale_periods,
+            MAX_STALE_PERIODS,
+            &mut problems,
+        );
+        let t = self.stamp_tolerance_s;
+        if !(t.is_finite() && (0.0..=MAX_STAMP_TOLERANCE_S).contains(&t)) {
+            problems.push(format!(
+                "--stamp-tolerance-s {t}: must be finite, at least 0 and at most {MAX_STAMP_TOLERANCE_S}"
+            ));
+        }
+        if let Some(b) = self.decision_budget_s {
+            positive("--decision-budget-s", b, MAX_PERIOD_S, &mut problems);
+        }
+        let max = proto::serve::MAX_HUMANS;
+        if !(1..=max).contains(&self.max_people) {
+            problems.push(format!(
+                "--max-people {}: must be at least 1 and at most {max}",
+                self.max_people
+            ));
+        }
+        problems.extend(self.limits.check());
+        if let Err(e) = self.topics.check() {
+            problems.push(e);
+        }
+        if let Err(e) = proto::keys::serve_act(&self.name) {
+            problems.push(format!("--name {:?}: {e}", self.name));
+        }
+        if problems.is_empty() {
+            Ok(())
+        } else {
+            Err(ServeError::Config(problems.join("; ")))
+        }
+    }
 }
 
 /// Why serving stopped with an error.
@@ -95,25 +203,236 @@ fn zerr(what: &'static str) -> impl Fn(zenoh::Error) -> ServeError {
     move |e| ServeError::Zenoh(format!("{what}: {e}"))
 }
 
-/// What the loop reacts to.
+/// What the loop reacts to, in the order it takes them ([`Inbox::next`]): a stop request,
+/// the deadline (the control period's tick or the instant an input turns stale), then the
+/// latest odometry, goal and people.
 pub enum Event {
-    Odometry(Vec<u8>, Instant),
-    People(Vec<u8>, Instant),
-    Goal(Vec<u8>),
-    Query(Query),
     Shutdown,
+    Deadline,
+    Odometry(Vec<u8>, Arrival),
+    Goal(Vec<u8>, Arrival),
+    People(Vec<u8>, Arrival),
 }
 
-/// The loop's inbox: give the sender to a signal handler to stop it ([`Event::Shutdown`]).
-pub fn channel() -> (Sender<Event>, Receiver<Event>) {
-    mpsc::channel()
+/// The latest input of each topic, waiting for the loop: a newer message replaces an older
+/// one not read yet (counted), so nothing queues up behind a slow loop.
+#[derive(Default)]
+struct Slots {
+    odometry: Option<(Vec<u8>, Arrival)>,
+    goal: Option<(Vec<u8>, Arrival)>,
+    people: Option<(Vec<u8>, Arrival)>,
+    shutdown: bool,
+    replaced: u64,
+}
+
+/// Which slot.
+#[derive(Debug, Clone, Copy)]
+enum Input {
+    Odometry,
+    Goal,
+    People,
+}
+
+/// The loop's inbox: a latest-value slot per input topic and the stop request. The
+/// subscribers write into it from zenoh's threads; [`Inbox::next`] hands the loop one event.
+#[derive(Clone, Default)]
+pub struct Inbox {
+    shared: Arc<(Mutex<Slots>, Condvar)>,
+}
+
+/// Stops a running [`run`] (from a signal handler, another thread).
+#[derive(Clone)]
+pub struct Stopper(Inbox);
+
+impl Stopper {
+    /// Asks the loop to send a last zero command and return.
+    pub fn stop(&self) {
+        self.0.lock().shutdown = true;
+        self.0.shared.1.notify_all();
+    }
+}
+
+impl Inbox {
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// A handle that stops the loop reading this inbox.
+    pub fn stopper(&self) -> Stopper {
+        Stopper(self.clone())
+    }
+
+    fn lock(&self) -> MutexGuard<'_, Slots> {
+        self.shared.0.lock().unwrap_or_else(PoisonError::into_inner)
+    }
+
+    fn put(&self, input: Input, bytes: Vec<u8>, arrival: Arrival) {
+        let mut s = self.lock();
+        let slot = match input {
+            Input::Odometry => &mut s.odometry,
+            Input::Goal => &mut s.goal,
+            Input::People => &mut s.people,
+        };
+        let old = slot.replace((bytes, arrival));
+        if old.is_some() {
+            s.replaced += 1;
+        }
+        drop(s);
+        self.shared.1.notify_all();
+        // The replaced bytes are freed here, outside the lock.
+        drop(old);
+    }
+
+    /// Inputs replaced before the loop read them.
+    fn replaced(&self) -> u64 {
+        self.lock().replaced
+    }
+
+    /// The next event: [`Event::Shutdown`] when asked; [`Event::Deadline`] once `deadline`
+    /// has passed, before any input, however many arrive; else the latest odometry, goal or
+    /// people; else it waits, until `deadline` at the latest.
+    pub fn next(&self, deadline: Instant) -> Event {
+        let mut s = self.lock();
+        loop {
+            if s.shutdown {
+                return Event::Shutdown;
+            }
+            let now = Instant::now();
+            if now >= deadline {
+                return Event::Deadline;
+            }
+            if let Some((b, a)) = s.odometry.take() {
+                return Event::Odometry(b, a);
+            }
+            if let Some((b, a)) = s.goal.take() {
+                return Event::Goal(b, a);
+            }
+            if let Some((b, a)) = s.people.take() {
+                return Event::People(b, a);
+            }
+            s = self
+                .shared
+                .1
+                .wait_timeout(s, deadline - now)
+                .unwrap_or_else(PoisonError::into_inner)
+                .0;
+        }
+    }
+}
+
+/// The queries waiting for the query worker: at most [`QUERY_QUEUE`] of them and
+/// [`QUERY_QUEUE_BYTES`] of payload; one more is refused at once, with a reply that says so.
+#[derive(Default)]
+struct QueryQueue {
+    state: Mutex<QueryState>,
+    ready: Condvar,
+}
+
+#[derive(Default)]
+struct QueryState {
+    waiting: VecDeque<(Query, Vec<u8>)>,
+    bytes: usize,
+    refused: u64,
+    answered: u64,
+    closed: bool,
+}
+
+impl QueryQueue {
+    fn lock(&self) -> MutexGuard<'_, QueryState> {
+        self.state.lock().unwrap_or_else(PoisonError::into_inner)
+    }
+
+    /// From zenoh's callback: queued, or refused with a reply (on the asker's own link).
+    fn offer(&self, q: Query) {
+        let payload = q
+            .payload()
+            .map(|p| p.to_bytes().into_owned())
+            .unwrap_or_default();
+        let mut s = self.lock();
+        if s.closed {
+            return;
+        }
+        let full = s.waiting.len() >= QUERY_QUEUE || s.bytes + payload.len() > QUERY_QUEUE_BYTES;
+        if !full {
+            s.bytes += payload.len();
+            s.waiting.push_back((q, payload));
+            drop(s);
+            self.ready.notify_one();
+            return;
+        }
+        s.refused += 1;
+        let (n, waiting) = (s.refused, s.waiting.len());
+        drop(s);
+        if n.is_power_of_two() {
+            tracing::warn!(
+                "query refused: {waiting} are waiting, at most {QUERY_QUEUE} (#{n} refused)"
+            );
+        }
+        let reply = proto::serve::ActReply::refused(format!(
+            "busy: {waiting} queries are waiting, at most {QUERY_QUEUE}; ask again later"
+        ));
+        if let Err(e) = q.reply(q.key_expr().clone(), reply.encode()).wait() {
+            tracing::debug!("cannot refuse a query: {e}");
+        }
+    }
+
+    /// For the worker: the next query, or `None` once closed.
+    fn take(&self) -> Option<(Query, Vec<u8>)> {
+        let mut s = self.lock();
+        loop {
+            if s.closed {
+                return None;
+            }
+            if let Some((q, payload)) = s.waiting.pop_front() {
+                s.bytes -= payload.len();
+                return Some((q, payload));
+            }
+            s = self.ready.wait(s).unwrap_or_else(PoisonError::into_inner);
+        }
+    }
+
+    fn close(&self) -> (u64, u64) {
+        let mut s = self.lock();
+        s.closed = true;
+        let waiting = std::mem::take(&mut s.waiting);
+        let counts = (s.answered, s.refused);
+        drop(s);
+        self.ready.notify_all();
+        // Dropping a query sends its final reply: off the lock, and off the loop (the worker
+        // or this thread at shutdown).
+        drop(waiting);
+        counts
+    }
+}
+
+/// The query worker: answers the queue's queries with its own copy of the policy, on its own
+/// thread, so a query (or an asker that does not read its replies, which blocks a reply) never
+/// delays the control loop.
+fn answer_queries(
+    queue: Arc<QueryQueue>,
+    mut policy: ServedPolicy,
+    limits: Limits,
+    max_people: usize,
+) {
+    while let Some((q, payload)) = queue.take() {
+        let reply = answer(&mut policy, &limits, max_people, &payload);
+        if let Err(e) = q.reply(q.key_expr().clone(), reply.encode()).wait() {
+            tracing::warn!("cannot reply to a query: {e}");
+        }
+        queue.lock().answered += 1;
+    }
 }
 
 /// What a finished run did.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub struct Summary {
     pub counters: crate::control::Counters,
+    /// Queries answered.
     pub queries: u64,
+    /// Queries refused because the queue was full.
+    pub refused_queries: u64,
+    /// Inputs replaced by a newer one before the loop read them.
+    pub replaced_inputs: u64,
 }
 
 /// A publisher of one ROS 2 topic, with rmw_zenoh's attachment when that is the style.
@@ -222,13 +541,25 @@ impl RosNode {
         Ok(Some(gid))
     }
 
+    /// A publisher that waits when the link is congested (the stand-in's inputs, whose
+    /// loss would stall a lockstep episode).
     pub fn publisher<M: RosMsg>(&mut self, topic: &str) -> Result<RosPublisher, ServeError> {
+        self.publisher_with::<M>(topic, CongestionControl::Block)
+    }
+
+    /// A publisher with congestion control `cc`: `Drop` drops a message a congested link
+    /// cannot take (after zenoh's `wait_before_drop`, 1 ms) instead of waiting for it.
+    pub fn publisher_with<M: RosMsg>(
+        &mut self,
+        topic: &str,
+        cc: CongestionControl,
+    ) -> Result<RosPublisher, ServeError> {
         let key = self.style.key::<M>(topic);
         let gid = self.announce::<M>(Entity::Publisher { topic })?;
         let publisher = self
             .session
             .declare_publisher(key)
-            .congestion_control(CongestionControl::Block)
+            .congestion_control(cc)
             .wait()
             .map_err(zerr("declare publisher"))?;
         Ok(RosPublisher {
@@ -272,11 +603,9 @@ fn subscribe_people(
     node: &mut RosNode,
     topic: &str,
     format: PeopleFormat,
-    tx: Sender<Event>,
+    inbox: Inbox,
 ) -> Result<Subscriber<()>, ServeError> {
-    let f = move |b| {
-        let _ = tx.send(Event::People(b, Instant::now()));
-    };
+    let f = move |b| inbox.put(Input::People, b, Arrival::now());
     match format {
         PeopleFormat::People => node.subscribe::<People>(topic, f),
         PeopleFormat::Spencer => node.subscribe::<TrackedPersons>(topic, f),
@@ -284,13 +613,26 @@ fn subscribe_people(
     }
 }
 
-/// The reply to one query.
-fn answer(policy: &mut ServedPolicy, limits: &Limits, payload: &[u8]) -> proto::serve::ActReply {
+/// The reply to one query: refused when it does not decode, holds more than `max_people`
+/// humans, or the policy refuses its values (out of the simulator's range); its step count is
+/// clamped to the model's time limit.
+fn answer(
+    policy: &mut ServedPolicy,
+    limits: &Limits,
+    max_people: usize,
+    payload: &[u8],
+) -> proto::serve::ActReply {
     use proto::serve::{ActReply, ActRequest};
     let req = match ActRequest::decode(payload) {
         Ok(r) => r,
         Err(e) => return ActReply::refused(e.to_string()),
     };
+    if req.humans.len() > max_people {
+        return ActReply::refused(format!(
+            "{} humans, at most {max_people} (--max-people)",
+            req.humans.len()
+        ));
+    }
     let obs = Observation {
         robot: RobotObs {
             position: sim::Vec2::new(req.robot.x_m, req.robot.y_m),
@@ -336,38 +678,53 @@ fn answer(policy: &mut ServedPolicy, limits: &Limits, payload: &[u8]) -> proto::
     }
 }
 
-/// Logs a stop when its kind changes (not every period).
-fn log_transition(last: &mut Option<String>, out: &Output) {
-    let now = out.stop.as_ref().map(|r| {
-        let s = r.to_string();
-        // One log line per kind of stop, not per changing age.
-        s.split(" (").next().unwrap_or(&s).to_string()
-    });
-    if now != *last {
+/// Logs a stop when its kind changes (not every period, not when only its numbers change).
+fn log_transition(last: &mut Option<Option<StopKind>>, out: &Output) {
+    let now = out.stop.as_ref().map(StopReason::kind);
+    if Some(now) != *last {
         match &out.stop {
             Some(r) => tracing::warn!("zero command: {r}"),
             None => tracing::info!("driving"),
         }
-        *last = now;
+        *last = Some(now);
     }
 }
 
-/// Runs `fsrl serve` until [`Event::Shutdown`] arrives on `events` (its sender side was given to
-/// a signal handler, see [`channel`]). Calls `on_ready` once, when the model is loaded and every
-/// subscriber, the command publisher and the queryable are declared (the CLI then prints
-/// `ready`, which tests wait for). A model that does not load is reported with a zero command on
-/// `cmd_vel` before the error returns, without `on_ready`.
+/// The loop's settings once the model has given the period.
+fn safety_of(opts: &ServeOptions, period: Duration) -> Result<Safety, ServeError> {
+    let secs = |what: &str, s: f64| {
+        Duration::try_from_secs_f64(s).map_err(|e| ServeError::Config(format!("{what}: {e}")))
+    };
+    let budget_s = opts.decision_budget_s.unwrap_or(period.as_secs_f64() / 2.0);
+    Ok(Safety {
+        stale_after: secs(
+            "the staleness limit",
+            period.as_secs_f64() * opts.stale_periods,
+        )?,
+        limits: opts.limits,
+        clock: opts.clock,
+        stamp_tolerance: secs("--stamp-tolerance-s", opts.stamp_tolerance_s)?,
+        max_people: opts.max_people,
+        decision_budget: secs("--decision-budget-s", budget_s)?,
+    })
+}
+
+/// Runs `fsrl serve` until its [`Stopper`] is called (give [`Inbox::stopper`] to a signal
+/// handler). Checks `opts` first ([`ServeOptions::check`]: nothing is opened if they are
+/// wrong). Calls `on_ready` once, when the model is loaded and every subscriber, the command
+/// publisher and the queryable are declared (the CLI then prints `ready`, which tests wait
+/// for). A model that does not load is reported with a zero command on `cmd_vel` before the
+/// error returns, without `on_ready`.
 pub fn run(
     opts: &ServeOptions,
-    events: (Sender<Event>, Receiver<Event>),
+    inbox: Inbox,
     on_ready: impl FnOnce(),
 ) -> Result<Summary, ServeError> {
-    opts.topics.check().map_err(ServeError::Config)?;
+    opts.check()?;
     let act_key =
         proto::keys::serve_act(&opts.name).map_err(|e| ServeError::Config(e.to_string()))?;
-    let (tx, rx) = events;
     let mut node = RosNode::open(&opts.zenoh, opts.style.clone(), &opts.name)?;
-    let mut cmd = node.publisher::<Twist>(&opts.topics.cmd_vel)?;
+    let mut cmd = node.publisher_with::<Twist>(&opts.topics.cmd_vel, CongestionControl::Drop)?;
     let mut policy = match ServedPolicy::load(&opts.model, opts.robot_visible) {
         Ok(p) => p,
         Err(e) => {
@@ -382,160 +739,170 @@ pub fn run(
             return Err(e.into());
         }
     };
-    let period = opts
-        .period
-        .unwrap_or_else(|| Duration::from_secs_f64(policy.period_s()));
-    if period.is_zero() || opts.stale_periods.is_nan() || opts.stale_periods <= 0.0 {
-        return Err(ServeError::Config(
-            "the period and the staleness limit must be positive".into(),
-        ));
-    }
-    let safety = Safety {
-        stale_after: period.mul_f64(opts.stale_periods),
-        limits: opts.limits,
+    let period = match opts.period_s {
+        Some(s) => Duration::try_from_secs_f64(s)
+            .map_err(|e| ServeError::Config(format!("--period-s {s}: {e}")))?,
+        None => Duration::from_secs_f64(policy.period_s()),
     };
+    let safety = safety_of(opts, period)?;
     let mut control = Controller::new(safety, opts.people_format);
 
-    let t = tx.clone();
+    let queries = Arc::new(QueryQueue::default());
+    let worker_policy = ServedPolicy::from_model(policy.model().clone(), opts.robot_visible)?;
+    let worker = {
+        let queries = queries.clone();
+        let (limits, max_people) = (opts.limits, opts.max_people);
+        std::thread::Builder::new()
+            .name("fsrl-serve-queries".into())
+            .spawn(move || answer_queries(queries, worker_policy, limits, max_people))
+            .map_err(|e| ServeError::Config(format!("cannot start the query worker: {e}")))?
+    };
+
+    let i = inbox.clone();
     let _odom = node.subscribe::<Odometry>(&opts.topics.odom, move |b| {
-        let _ = t.send(Event::Odometry(b, Instant::now()));
+        i.put(Input::Odometry, b, Arrival::now())
     })?;
-    let t = tx.clone();
+    let i = inbox.clone();
     let _goal = node.subscribe::<PoseStamped>(&opts.topics.goal, move |b| {
-        let _ = t.send(Event::Goal(b));
+        i.put(Input::Goal, b, Arrival::now())
     })?;
     let _people = subscribe_people(
         &mut node,
         &opts.topics.people,
         opts.people_format,
-        tx.clone(),
+        inbox.clone(),
     )?;
-    let t = tx.clone();
-    let _queryable: Queryable<()> = node
+    let q = queries.clone();
+    let queryable: Queryable<()> = node
         .session
         .declare_queryable(act_key.clone())
-        .callback(move |q| {
-            let _ = t.send(Event::Query(q));
-        })
+        .callback(move |query| q.offer(query))
         .wait()
         .map_err(zerr("declare queryable"))?;
-    drop(tx);
     tracing::info!(
         model = %opts.model.display(),
         method = %policy.model().method,
         setting = policy.setting().name(),
         period_s = period.as_secs_f64(),
+        stale_after_s = safety.stale_after.as_secs_f64(),
+        clock = ?safety.clock,
+        max_people = safety.max_people,
+        decision_budget_s = safety.decision_budget.as_secs_f64(),
         queryable = %act_key,
         "serving"
     );
     on_ready();
 
     let mut summary = Summary::default();
-    let mut last_log: Option<String> = None;
+    let mut last_log = None;
     let mut next_tick = Instant::now() + period;
-    let publish = |cmd: &mut RosPublisher, out: &Output, last: &mut Option<String>| {
+    // Stale instants up to this one have been acted on.
+    let mut watched = Instant::now();
+    let publish = |cmd: &mut RosPublisher, out: &Output, last: &mut _| {
         log_transition(last, out);
         if let Err(e) = cmd.put(&twist_of(&out.command)) {
             tracing::warn!("cannot publish the command: {e}");
         }
     };
+    let lockstep = opts.trigger == Trigger::Odometry;
     loop {
-        let wait = next_tick.saturating_duration_since(Instant::now());
-        let ev = match rx.recv_timeout(wait) {
-            Ok(ev) => Some(ev),
-            Err(RecvTimeoutError::Timeout) => None,
-            Err(RecvTimeoutError::Disconnected) => Some(Event::Shutdown),
-        };
-        match ev {
-            None => {
-                next_tick += period;
-                let now = Instant::now();
-                if next_tick < now {
-                    next_tick = now + period;
-                }
-                let out = match opts.trigger {
-                    Trigger::Timer => Some(control.step(&mut policy, now)),
-                    // Lockstep: the tick is only the watchdog.
-                    Trigger::Odometry => match control.observation(now) {
-                        Err(reason)
-                            if !matches!(
-                                reason,
-                                StopReason::NoOdometry | StopReason::NoGoal | StopReason::NoPeople
-                            ) =>
-                        {
-                            Some(Output::stop(reason))
-                        }
-                        _ => None,
-                    },
-                };
-                if let Some(out) = out {
-                    publish(&mut cmd, &out, &mut last_log);
-                }
-            }
-            Some(Event::Odometry(b, at)) => match control.on_odometry(&b, at) {
-                Intake::Undecodable(e) => {
-                    log_count("odometry", control.counters().undecodable_odometry, &e)
-                }
-                Intake::Refused(r) => {
-                    tracing::error!("{r}");
-                    let out = Output::stop(r);
-                    publish(&mut cmd, &out, &mut last_log);
-                }
-                Intake::Accepted => {
-                    if opts.trigger == Trigger::Odometry && control.synced() {
-                        let out = control.step(&mut policy, Instant::now());
-                        publish(&mut cmd, &out, &mut last_log);
-                    }
-                }
-            },
-            Some(Event::People(b, at)) => match control.on_people(&b, at) {
-                Intake::Undecodable(e) => {
-                    log_count("people", control.counters().undecodable_people, &e)
-                }
-                _ => {
-                    if opts.trigger == Trigger::Odometry && control.synced() {
-                        let out = control.step(&mut policy, Instant::now());
-                        publish(&mut cmd, &out, &mut last_log);
-                    }
-                }
-            },
-            Some(Event::Goal(b)) => match control.on_goal(&b) {
-                Intake::Undecodable(e) => {
-                    log_count("goal", control.counters().undecodable_goals, &e)
-                }
-                Intake::Refused(r) => {
-                    tracing::error!("{r}");
-                    let out = Output::stop(r);
-                    publish(&mut cmd, &out, &mut last_log);
-                }
-                Intake::Accepted => {}
-            },
-            Some(Event::Query(q)) => {
-                summary.queries += 1;
-                let payload = q
-                    .payload()
-                    .map(|p| p.to_bytes().into_owned())
-                    .unwrap_or_default();
-                let reply = answer(&mut policy, &opts.limits, &payload);
-                if let Err(e) = q.reply(q.key_expr().clone(), reply.encode()).wait() {
-                    tracing::warn!("cannot reply to a query: {e}");
-                }
-            }
-            Some(Event::Shutdown) => {
+        let stale = control.stale_at().filter(|&t| t > watched);
+        let deadline = stale.map_or(next_tick, |t| t.min(next_tick));
+        let ev = inbox.next(deadline);
+        let out = match ev {
+            Event::Shutdown => {
                 let out = Output::stop(StopReason::Shutdown);
                 publish(&mut cmd, &out, &mut last_log);
                 break;
             }
+            Event::Deadline => {
+                let now = Instant::now();
+                watched = now;
+                if now >= next_tick {
+                    next_tick += period;
+                    if next_tick < now {
+                        next_tick = now + period;
+                    }
+                    if lockstep {
+                        // The tick is only the watchdog: inputs missing at the start are
+                        // not a fault, the simulator has not begun.
+                        match control.observation(now) {
+                            Err(reason)
+                                if !matches!(
+                                    reason,
+                                    StopReason::NoOdometry
+                                        | StopReason::NoGoal
+                                        | StopReason::NoPeople
+                                ) =>
+                            {
+                                Some(Output::stop(reason))
+                            }
+                            _ => None,
+                        }
+                    } else {
+                        Some(control.step(&mut policy, now))
+                    }
+                } else {
+                    // An input has just turned stale: the stop goes out now, not at the tick.
+                    match control.observation(now) {
+                        Err(
+                            reason @ (StopReason::StaleOdometry { .. }
+                            | StopReason::StalePeople { .. }),
+                        ) => Some(Output::stop(reason)),
+                        _ => None,
+                    }
+                }
+            }
+            Event::Odometry(b, at) => match control.on_odometry(&b, at) {
+                Intake::Undecodable(e) => {
+                    log_count("odometry", control.counters().undecodable_odometry, &e);
+                    None
+                }
+                Intake::Refused(r) => Some(Output::stop(r)),
+                Intake::Accepted => (lockstep && control.synced())
+                    .then(|| control.step(&mut policy, Instant::now())),
+            },
+            Event::People(b, at) => match control.on_people(&b, at) {
+                Intake::Undecodable(e) => {
+                    log_count("people", control.counters().undecodable_people, &e);
+                    None
+                }
+                Intake::Refused(r) => Some(Output::stop(r)),
+                Intake::Accepted => (lockstep && control.synced())
+                    .then(|| control.step(&mut policy, Instant::now())),
+            },
+            Event::Goal(b, at) => match control.on_goal(&b, at) {
+                Intake::Undecodable(e) => {
+                    log_count("goal", control.counters().undecodable_goals, &e);
+                    None
+                }
+                Intake::Refused(r) => Some(Output::stop(r)),
+                Intake::Accepted => None,
+            },
+        };
+        if let Some(out) = out {
+            publish(&mut cmd, &out, &mut last_log);
         }
     }
+    drop(queryable);
+    (summary.queries, summary.refused_queries) = queries.close();
+    // The worker ends after its current reply (it is not waited for: a reply to an asker
+    // that does not read may block it until zenoh closes that link).
+    drop(worker);
     summary.counters = control.counters();
+    summary.replaced_inputs = inbox.replaced();
     let c = summary.counters;
     tracing::info!(
         decisions = c.decisions,
         stops = c.stops,
+        too_slow = c.too_slow,
         undecodable = c.undecodable(),
         refused_goals = c.refused_goals,
+        refused_odometry = c.refused_odometry,
+        refused_people = c.refused_people,
+        replaced_inputs = summary.replaced_inputs,
         queries = summary.queries,
+        refused_queries = summary.refused_queries,
         "stopped"
     );
     drop(node);

@@ -23,6 +23,54 @@ pub enum PolicyFailure {
     Decide(String),
 }
 
+/// Largest distance from the frame's origin accepted, for the robot, its goal, a person and a
+/// person's goal: the simulator's ORCA computes in f32, whose resolution is ~6 mm at 100 km.
+pub const MAX_COORDINATE_M: f64 = 1.0e5;
+/// Largest speed accepted, for the robot's velocity, a person's velocity and preferred speed.
+pub const MAX_SPEED_MPS: f64 = 100.0;
+/// Largest radius accepted for a person.
+pub const MAX_RADIUS_M: f64 = 100.0;
+
+/// Why `obs` holds values out of the simulator's range (see [`ServedPolicy::decide`]).
+fn check_bounds(obs: &Observation) -> Result<(), String> {
+    let far = |v: Vec2| v.x.abs() > MAX_COORDINATE_M || v.y.abs() > MAX_COORDINATE_M;
+    // A speed that is not a number counts as too fast.
+    let fast = |v: Vec2| v.norm() > MAX_SPEED_MPS || v.norm().is_nan();
+    if far(obs.robot.position) || far(obs.goal) {
+        return Err(format!(
+            "the robot or its goal is farther than {MAX_COORDINATE_M} m from the origin"
+        ));
+    }
+    if fast(obs.robot.velocity) {
+        return Err(format!("the robot moves faster than {MAX_SPEED_MPS} m/s"));
+    }
+    for (i, p) in obs.humans.iter().enumerate() {
+        let finite = |v: Vec2| v.x.is_finite() && v.y.is_finite();
+        if !finite(p.position) || !finite(p.velocity) || p.goal.is_some_and(|g| !finite(g)) {
+            return Err(format!("person {i}: a value is not finite"));
+        }
+        if far(p.position) || p.goal.is_some_and(far) {
+            return Err(format!(
+                "person {i} or its goal is farther than {MAX_COORDINATE_M} m from the origin"
+            ));
+        }
+        if fast(p.velocity)
+            || p.v_pref_mps
+                .is_some_and(|v| !(v > 0.0 && v <= MAX_SPEED_MPS))
+        {
+            return Err(format!(
+                "person {i}: speeds must be at most {MAX_SPEED_MPS} m/s (a preferred speed positive)"
+            ));
+        }
+        if p.radius_m.is_some_and(|r| !(r > 0.0 && r <= MAX_RADIUS_M)) {
+            return Err(format!(
+                "person {i}: the radius must be positive and at most {MAX_RADIUS_M} m"
+            ));
+        }
+    }
+    Ok(())
+}
+
 /// The robot's state as observed, world (odometry) frame.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct RobotObs {
@@ -76,37 +124,48 @@ impl Command {
     };
 
     /// The command within `limits`: the linear speed scaled down to `max_speed_mps`, the turn
-    /// rate clamped to ±`max_turn_rate_radps`.
+    /// rate clamped to ±`max_turn_rate_radps` (each when given).
     pub fn limited(self, limits: &Limits) -> Command {
         let speed = self.linear_x_mps.hypot(self.linear_y_mps);
-        let scale = if speed > limits.max_speed_mps {
-            limits.max_speed_mps / speed
-        } else {
-            1.0
+        let scale = match limits.max_speed_mps {
+            Some(max) if speed > max => max / speed,
+            _ => 1.0,
+        };
+        let turn = match limits.max_turn_rate_radps {
+            Some(max) => self.angular_z_radps.clamp(-max, max),
+            None => self.angular_z_radps,
         };
         Command {
             linear_x_mps: self.linear_x_mps * scale,
             linear_y_mps: self.linear_y_mps * scale,
-            angular_z_radps: self
-                .angular_z_radps
-                .clamp(-limits.max_turn_rate_radps, limits.max_turn_rate_radps),
+            angular_z_radps: turn,
         }
     }
 }
 
 /// Limits applied to the policy's command (none by default: the action set's own).
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct Limits {
-    pub max_speed_mps: f64,
-    pub max_turn_rate_radps: f64,
+    pub max_speed_mps: Option<f64>,
+    pub max_turn_rate_radps: Option<f64>,
 }
 
-impl Default for Limits {
-    fn default() -> Self {
-        Self {
-            max_speed_mps: f64::INFINITY,
-            max_turn_rate_radps: f64::INFINITY,
-        }
+impl Limits {
+    /// Every limit given is a positive, finite number (a negative speed limit would reverse
+    /// the robot, NaN or a negative turn rate make `clamp` panic); every problem, one per item.
+    pub fn check(&self) -> Vec<String> {
+        [
+            ("--max-speed-mps", self.max_speed_mps),
+            ("--max-turn-rate-radps", self.max_turn_rate_radps),
+        ]
+        .into_iter()
+        .filter_map(|(flag, v)| {
+            let v = v?;
+            (!(v.is_finite() && v > 0.0)).then(|| {
+                format!("{flag} {v}: must be positive and finite (leave it out for no limit)")
+            })
+        })
+        .collect()
     }
 }
 
@@ -278,7 +337,21 @@ impl ServedPolicy {
         }
     }
 
-    /// Decides the action for `obs`.
+    /// The step counter's ceiling: the first step at which every episode of the model's world
+    /// has timed out. A larger count (a goal stamped on another clock, a query's `steps`)
+    /// plans exactly as this one and cannot overflow the simulator's `steps + 1`.
+    pub fn step_limit(&self) -> u32 {
+        let n = (self.cfg.time_limit_s / self.cfg.dt_s).ceil();
+        if n.is_finite() && n >= 0.0 {
+            n.min(u32::MAX as f64 - 1.0) as u32
+        } else {
+            0
+        }
+    }
+
+    /// Decides the action for `obs`. Refuses values the simulator cannot hold: not finite,
+    /// positions farther than [`MAX_COORDINATE_M`], speeds above [`MAX_SPEED_MPS`], radii
+    /// above [`MAX_RADIUS_M`]. The step count is clamped to [`ServedPolicy::step_limit`].
     pub fn decide(&mut self, obs: &Observation) -> Result<Decision, PolicyFailure> {
         let finite = |v: Vec2| v.x.is_finite() && v.y.is_finite();
         if !finite(obs.robot.position)
@@ -290,6 +363,7 @@ impl ServedPolicy {
                 "robot or goal values are not finite".into(),
             ));
         }
+        check_bounds(obs).map_err(PolicyFailure::Observation)?;
         // The simulator keeps headings in [−π, π); wrapping one already there could change
         // its last bits.
         let h = obs.robot.heading_rad;
@@ -321,16 +395,17 @@ impl ServedPolicy {
         }
         let mut scenario = self.scenario(obs);
         scenario.robot.heading_rad = heading;
+        let steps = obs.steps.min(self.step_limit());
         let env = match &mut self.env {
             Some(env) => {
-                env.resume_from_scenario(0, scenario, obs.steps);
+                env.resume_from_scenario(0, scenario, steps);
                 env
             }
             slot => {
                 let env = Env::from_scenario(self.cfg.clone(), self.setting, 0, scenario.clone())
                     .map_err(|e| PolicyFailure::Observation(e.to_string()))?;
                 let env = slot.insert(env);
-                env.resume_from_scenario(0, scenario, obs.steps);
+                env.resume_from_scenario(0, scenario, steps);
                 env
             }
         };
@@ -406,8 +481,8 @@ mod tests {
             angular_z_radps: -2.0,
         };
         let l = c.limited(&Limits {
-            max_speed_mps: 0.5,
-            max_turn_rate_radps: 1.0,
+            max_speed_mps: Some(0.5),
+            max_turn_rate_radps: Some(1.0),
         });
         assert_eq!(l.linear_x_mps, 0.5);
         assert_eq!(l.angular_z_radps, -1.0);
@@ -433,5 +508,79 @@ mod tests {
         let mut bad = obs.clone();
         bad.goal.x = f64::NAN;
         assert!(served.decide(&bad).is_err());
+    }
+
+    fn crossing() -> Observation {
+        Observation {
+            robot: RobotObs {
+                position: Vec2::new(0.0, -4.0),
+                velocity: Vec2::new(0.0, 0.5),
+                heading_rad: std::f64::consts::FRAC_PI_2,
+            },
+            goal: Vec2::new(0.0, 4.0),
+            humans: vec![PersonObs::tracked(
+                Vec2::new(1.0, -2.0),
+                Vec2::new(-0.5, 0.0),
+            )],
+            steps: 3,
+        }
+    }
+
+    #[test]
+    fn a_step_count_beyond_the_time_limit_plans_as_the_limit() {
+        let mut served = ServedPolicy::from_model(model(), None).unwrap();
+        let limit = served.step_limit();
+        assert_eq!(limit, 100, "25 s of 0.25 s steps");
+        let mut obs = crossing();
+        obs.steps = limit;
+        let at_limit = served.decide(&obs).unwrap();
+        // u32::MAX would wrap the simulator's `steps + 1` to 0 (a fresh episode) in a release
+        // build and panic in a debug one.
+        obs.steps = u32::MAX;
+        assert_eq!(served.decide(&obs).unwrap(), at_limit);
+        obs.steps = 0;
+        assert_ne!(served.decide(&obs).unwrap().value, at_limit.value);
+    }
+
+    #[test]
+    fn values_beyond_the_simulators_range_are_refused() {
+        let mut served = ServedPolicy::from_model(model(), None).unwrap();
+        assert!(served.decide(&crossing()).is_ok());
+        let bad: [fn(&mut Observation); 6] = [
+            |o| o.robot.position.x = 1e6,
+            |o| o.goal.y = -1e300,
+            |o| o.robot.velocity.x = 1e3,
+            |o| o.humans[0].velocity.y = f64::INFINITY,
+            |o| o.humans[0].radius_m = Some(1e9),
+            |o| o.humans[0].v_pref_mps = Some(0.0),
+        ];
+        for (i, f) in bad.iter().enumerate() {
+            let mut o = crossing();
+            f(&mut o);
+            assert!(
+                matches!(served.decide(&o), Err(PolicyFailure::Observation(_))),
+                "case {i}"
+            );
+        }
+    }
+
+    #[test]
+    fn limits_must_be_positive_and_finite() {
+        assert!(Limits::default().check().is_empty());
+        let ok = Limits {
+            max_speed_mps: Some(0.5),
+            max_turn_rate_radps: Some(1.0),
+        };
+        assert!(ok.check().is_empty());
+        for bad in [-1.0, 0.0, f64::NAN, f64::INFINITY, -0.5] {
+            let l = Limits {
+                max_speed_mps: Some(bad),
+                max_turn_rate_radps: Some(bad),
+            };
+            let problems = l.check();
+            assert_eq!(problems.len(), 2, "{bad}: {problems:?}");
+            assert!(problems[0].starts_with("--max-speed-mps"));
+            assert!(problems[1].starts_with("--max-turn-rate-radps"));
+        }
     }
 }

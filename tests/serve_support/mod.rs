@@ -1,0 +1,265 @@
+//! What the tests of `fsrl serve` share (`serve.rs`, `serve_flood.rs`): the server started and
+//! waited for, its log read line by line, a robot on the bridge keys (odometry, people and goal
+//! stamped with this computer's clock, the commands it receives with the instant they came),
+//! and the server's resident memory.
+#![allow(dead_code)]
+
+use std::io::{BufRead, BufReader};
+use std::path::Path;
+use std::process::{Command, Stdio};
+use std::sync::mpsc;
+use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
+
+use serve::msg::{
+    self, Header, Odometry, People, Point, Pose, PoseStamped, Quaternion, Time, Twist,
+};
+use zenoh::Wait;
+
+use crate::net_support::Reaped;
+
+/// The shipped model `fsrl serve` drives with.
+pub fn model_path() -> String {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("models/fsrl-env1-invisible-s0.fsrlm")
+        .to_string_lossy()
+        .into_owned()
+}
+
+/// A running `fsrl serve`: killed on drop; its stderr lines (echoed to the test's) in `log`.
+pub struct Served {
+    pub proc: Reaped,
+    pub log: mpsc::Receiver<String>,
+}
+
+impl Served {
+    /// Starts `fsrl serve MODEL` listening on `listen` (an endpoint) and waits for `ready`.
+    pub fn start(model: &Path, listen: &str, extra: &[&str]) -> Served {
+        let mut c = Command::new(env!("CARGO_BIN_EXE_fsrl"))
+            .arg("serve")
+            .arg(model)
+            .arg("--listen")
+            .arg(listen)
+            .args(extra)
+            .stdin(Stdio::null())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap();
+        let stdout = c.stdout.take().unwrap();
+        let stderr = c.stderr.take().unwrap();
+        let proc = Reaped(c);
+        let (tx, rx) = mpsc::channel();
+        std::thread::spawn(move || {
+            for line in BufReader::new(stdout).lines().map_while(Result::ok) {
+                let _ = tx.send(line);
+            }
+        });
+        let (tx, log) = mpsc::channel();
+        std::thread::spawn(move || {
+            for line in BufReader::new(stderr).lines().map_while(Result::ok) {
+                eprintln!("[serve] {line}");
+                let _ = tx.send(line);
+            }
+        });
+        let ready = rx.recv_timeout(Duration::from_secs(60));
+        assert_eq!(
+            ready.as_deref(),
+            Ok("ready"),
+            "fsrl serve did not become ready"
+        );
+        Served { proc, log }
+    }
+
+    /// The shipped model on 127.0.0.1:`port`.
+    pub fn shipped(port: u16, extra: &[&str]) -> Served {
+        Self::start(
+            Path::new(&model_path()),
+            &format!("tcp/127.0.0.1:{port}"),
+            extra,
+        )
+    }
+
+    pub fn pid(&self) -> u32 {
+        self.proc.0.id()
+    }
+
+    /// The next log line containing `what` (earlier lines are passed over).
+    pub fn wait_log(&self, what: &str, within: Duration) -> String {
+        let deadline = Instant::now() + within;
+        loop {
+            let left = deadline.saturating_duration_since(Instant::now());
+            match self.log.recv_timeout(left) {
+                Ok(line) if line.contains(what) => return line,
+                Ok(_) => {}
+                Err(_) => panic!("no log line with {what:?} within {within:?}"),
+            }
+        }
+    }
+
+    /// The reason of the next zero command logged (`zero command: REASON`): the first one after
+    /// the lines read so far, whatever it says.
+    pub fn next_stop_reason(&self, within: Duration) -> String {
+        let line = self.wait_log("zero command: ", within);
+        line.split("zero command: ")
+            .nth(1)
+            .unwrap_or("")
+            .to_string()
+    }
+
+    /// Sends SIGTERM and waits for the exit; its status.
+    pub fn terminate(&mut self) -> std::process::ExitStatus {
+        // SAFETY: sending a signal to our own child.
+        unsafe {
+            libc::kill(self.pid() as i32, libc::SIGTERM);
+        }
+        self.proc.0.wait().unwrap()
+    }
+}
+
+/// This computer's clock, seconds since the epoch (what a robot stamps with).
+pub fn now_s() -> f64 {
+    SystemTime::now()
+        .duration_since(UNIX_EPOCH)
+        .unwrap()
+        .as_secs_f64()
+}
+
+/// Resident memory of process `pid` in MB (`VmRSS` of `/proc/<pid>/status`).
+pub fn rss_mb(pid: u32) -> f64 {
+    let status = std::fs::read_to_string(format!("/proc/{pid}/status")).unwrap_or_default();
+    status
+        .lines()
+        .find_map(|l| l.strip_prefix("VmRSS:"))
+        .and_then(|v| v.split_whitespace().next()?.parse::<f64>().ok())
+        .map_or(0.0, |kb| kb / 1024.0)
+}
+
+/// A zenoh peer of `fsrl serve` on loopback (multicast scouting off), connecting to
+/// `endpoint`.
+pub fn session(endpoint: &str) -> zenoh::Session {
+    let cfg = transport::ZenohConfig::peer(vec!["tcp/127.0.0.1:0".into()], vec![endpoint.into()])
+        .to_zenoh(8 << 20)
+        .unwrap();
+    zenoh::open(cfg).wait().unwrap()
+}
+
+pub fn header(frame: &str, t_s: f64) -> Header {
+    Header {
+        stamp: Time::from_secs_f64(t_s),
+        frame_id: frame.into(),
+    }
+}
+
+/// Odometry at (0, −4) heading +y, stamped `t_s`.
+pub fn odometry(t_s: f64) -> Vec<u8> {
+    let mut o = Odometry {
+        header: header("odom", t_s),
+        child_frame_id: "base_link".into(),
+        ..Odometry::default()
+    };
+    o.pose.pose.position.y = -4.0;
+    o.pose.pose.orientation = Quaternion::from_yaw(std::f64::consts::FRAC_PI_2);
+    msg::encode(&o).unwrap()
+}
+
+/// `n` people in `frame` stamped `t_s`, walking across the robot's way.
+pub fn people(frame: &str, t_s: f64, n: usize) -> Vec<u8> {
+    let m = People {
+        header: header(frame, t_s),
+        people: (0..n)
+            .map(|i| {
+                serve::people::person_with_tags(
+                    i.to_string(),
+                    &serve::people::PersonObs::tracked(
+                        sim::Vec2::new(2.0 + 0.7 * i as f64, (i % 3) as f64),
+                        sim::Vec2::new(-0.5, 0.0),
+                    ),
+                )
+            })
+            .collect(),
+    };
+    msg::encode(&m).unwrap()
+}
+
+/// The goal (0, 4) in `frame` stamped `t_s`.
+pub fn goal(frame: &str, t_s: f64) -> Vec<u8> {
+    msg::encode(&PoseStamped {
+        header: header(frame, t_s),
+        pose: Pose {
+            position: Point {
+                x: 0.0,
+                y: 4.0,
+                z: 0.0,
+            },
+            ..Pose::default()
+        },
+    })
+    .unwrap()
+}
+
+/// A robot on the bridge keys: puts inputs, receives `cmd_vel` with the instant it came.
+pub struct Robot {
+    pub session: zenoh::Session,
+    pub cmd: mpsc::Receiver<(Instant, Twist)>,
+    _sub: zenoh::pubsub::Subscriber<()>,
+}
+
+impl Robot {
+    pub fn connect(endpoint: &str) -> Self {
+        let session = session(endpoint);
+        let (tx, cmd) = mpsc::channel();
+        let sub = session
+            .declare_subscriber("cmd_vel")
+            .callback(move |s| {
+                if let Ok(t) = msg::decode::<Twist>(&s.payload().to_bytes()) {
+                    let _ = tx.send((Instant::now(), t));
+                }
+            })
+            .wait()
+            .unwrap();
+        Self {
+            session,
+            cmd,
+            _sub: sub,
+        }
+    }
+
+    pub fn put(&self, key: &str, bytes: Vec<u8>) {
+        self.session.put(key, bytes).wait().unwrap();
+    }
+
+    /// Goal, people and odometry stamped now: a robot with everything fresh.
+    pub fn fresh(&self) {
+        let t = now_s();
+        self.put("goal_pose", goal("odom", t));
+        self.put("people", people("odom", t, 1));
+        self.put("odom", odometry(t));
+    }
+
+    /// Waits (20 s at most) for a command satisfying `pred` while `feed` runs every 50 ms.
+    pub fn until(&self, what: &str, mut feed: impl FnMut(), pred: impl Fn(&Twist) -> bool) {
+        let deadline = Instant::now() + Duration::from_secs(20);
+        while Instant::now() < deadline {
+            feed();
+            if let Ok((_, t)) = self.cmd.recv_timeout(Duration::from_millis(50)) {
+                if pred(&t) {
+                    return;
+                }
+            }
+        }
+        panic!("no command: {what}");
+    }
+
+    /// Forgets the commands received so far.
+    pub fn drain(&self) {
+        while self.cmd.try_recv().is_ok() {}
+    }
+}
+
+pub fn moving(t: &Twist) -> bool {
+    t.linear.x != 0.0 || t.angular.z != 0.0
+}
+
+pub fn zero(t: &Twist) -> bool {
+    *t == Twist::ZERO
+}
