@@ -27,7 +27,7 @@ use lab::grid::{
 use policy::method::Method;
 use sim::Setting;
 
-use crate::config::FileConfig;
+use crate::config::{FileConfig, ReplayRatioArg};
 
 #[derive(Debug, clap::Args)]
 pub struct ReproduceArgs {
@@ -45,8 +45,8 @@ pub struct ReproduceArgs {
     pub actors: u32,
     /// Updates per RL episode of each distributed run (`fsrl train --replay-ratio`): `MIN,MAX`
     /// or `fixed` [default: the config's train.rl.replay_ratio, else 4,20]
-    #[arg(long)]
-    pub replay_ratio: Option<String>,
+    #[arg(long, value_name = "MIN,MAX|fixed", allow_hyphen_values = true, value_parser = ReplayRatioArg::parse)]
+    pub replay_ratio: Option<ReplayRatioArg>,
     /// Train only shard I of N of the grid (0 ≤ I < N; run k of the grid, in its order, belongs
     /// to shard k mod N), for a cluster scheduler's array job. Without it: from
     /// SLURM_ARRAY_TASK_ID − SLURM_ARRAY_TASK_MIN of SLURM_ARRAY_TASK_COUNT, or Kubernetes'
@@ -89,6 +89,9 @@ pub struct ReproduceArgs {
 
 /// What the command line asks for, validated.
 pub struct Grid {
+    /// The config file, its `train.rl.replay_ratio` the one the runs are trained with (what
+    /// `fsrl train` resolves for them: `--replay-ratio`, else the file's, else the default of
+    /// distributed runs), so that a run on disk is compared with what it was trained with.
     pub file: FileConfig,
     pub methods: Vec<Method>,
     pub settings: Vec<Setting>,
@@ -98,19 +101,30 @@ pub struct Grid {
 /// Reads the config and checks every name and number before anything starts, all problems
 /// reported together.
 pub fn grid(args: &ReproduceArgs) -> anyhow::Result<Grid> {
-    let file = FileConfig::load(args.config.as_deref())?;
+    let mut file = FileConfig::load(args.config.as_deref())?;
     let mut problems = Vec::new();
     if args.actors == 0 {
         problems.push("--actors must be at least 1".to_string());
     }
-    if let Some(r) = &args.replay_ratio {
-        match policy::method::ReplayRatio::parse_arg(r) {
-            Err(e) => problems.push(e),
-            Ok(Some(_)) if args.single_process => problems.push(
-                "--replay-ratio MIN,MAX needs distributed runs; --single-process trains the fixed schedule".to_string(),
-            ),
-            Ok(_) => {}
+    match args.replay_ratio {
+        Some(ReplayRatioArg(Some(_))) if args.single_process => problems.push(
+            "--replay-ratio MIN,MAX needs distributed runs; --single-process trains the fixed schedule".to_string(),
+        ),
+        Some(ReplayRatioArg(r)) => file.train.rl.replay_ratio = r,
+        // `fsrl train`'s default for a distributed run (a single-process one refuses bounds
+        // from the file, below).
+        None if !args.single_process => {
+            let rl = &mut file.train.rl;
+            rl.replay_ratio = rl
+                .replay_ratio
+                .or(Some(policy::method::ReplayRatio::LOCAL_DEFAULT));
         }
+        None => {}
+    }
+    if args.single_process && file.train.rl.replay_ratio.is_some() {
+        problems.push(
+            "train.rl.replay_ratio (the adaptive mode) needs distributed runs; --single-process trains the fixed schedule: drop one of the two".to_string(),
+        );
     }
     let mut methods = Vec::new();
     for name in &args.methods {
@@ -399,8 +413,9 @@ pub fn run(args: ReproduceArgs) -> anyhow::Result<()> {
                 os(&[&"--single-process"])
             } else {
                 let mut m = os(&[&"--actors", &args.actors.to_string()]);
-                if let Some(r) = &args.replay_ratio {
-                    m.extend(os(&[&"--replay-ratio", r]));
+                if let Some(ReplayRatioArg(r)) = args.replay_ratio {
+                    let r = r.map_or("fixed".to_string(), |r| format!("{},{}", r.min, r.max));
+                    m.extend(os(&[&"--replay-ratio", &r]));
                 }
                 m
             };
@@ -579,6 +594,55 @@ mod tests {
         a = args(&tmp.path().join("missing.toml"), tmp.path());
         let err = format!("{:#}", grid(&a).err().unwrap());
         assert!(err.contains("missing.toml"), "{err}");
+    }
+
+    /// Issue 44: a run `fsrl train` trained with the default replay ratio of distributed runs
+    /// is not "trained with another [train]"; the same run is, for a grid of single-process
+    /// runs or of the fixed schedule.
+    #[test]
+    fn a_default_distributed_run_is_trained_with_the_grids_own_train() {
+        let tmp = tempfile::tempdir().unwrap();
+        let cfg = tmp.path().join("c.toml");
+        std::fs::write(&cfg, "").unwrap();
+        let mut a = args(&cfg, &tmp.path().join("runs"));
+        a.settings = vec!["env1-invisible".into()];
+        let layout = Layout {
+            runs: a.runs.clone(),
+            models: a.models.clone(),
+        };
+        // The run directory as `fsrl train` (distributed, no flags) leaves it.
+        let dir = layout.run_dir(&run_name(Method::Sarl, set("env1-invisible"), 0));
+        std::fs::create_dir_all(&dir).unwrap();
+        std::fs::write(dir.join("report.json"), "{}").unwrap();
+        let mut file = FileConfig::load(Some(&cfg)).unwrap();
+        file.run.method = "sarl".into();
+        file.run.setting = "env1-invisible".into();
+        let mut resolved = file.resolve(Vec::new()).unwrap();
+        resolved.file.train.rl.replay_ratio = Some(policy::method::ReplayRatio::LOCAL_DEFAULT);
+        std::fs::write(
+            dir.join("config.toml"),
+            toml::to_string(&resolved.file).unwrap(),
+        )
+        .unwrap();
+        let differs = |a: &ReproduceArgs| {
+            let g = grid(a).unwrap();
+            let cells = cells(&g.methods, &g.settings, &g.seeds);
+            plan(&cells, &layout, &g.file.sim, &g.file.train, 500)[0].config_differs
+        };
+        assert!(!differs(&a), "a default distributed run");
+        a.replay_ratio = Some(ReplayRatioArg(Some(
+            policy::method::ReplayRatio::LOCAL_DEFAULT,
+        )));
+        assert!(!differs(&a), "--replay-ratio 4,20");
+        a.replay_ratio = Some(ReplayRatioArg(None));
+        assert!(differs(&a), "--replay-ratio fixed");
+        a.replay_ratio = None;
+        a.single_process = true;
+        assert!(differs(&a), "--single-process");
+        // Bounds in the file and single-process runs: refused with the grid's other problems.
+        std::fs::write(&cfg, "[train.rl]\nreplay_ratio = { min = 2, max = 9 }\n").unwrap();
+        let e = format!("{:#}", grid(&a).err().unwrap());
+        assert!(e.contains("needs distributed runs"), "{e}");
     }
 
     #[test]

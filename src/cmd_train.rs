@@ -15,7 +15,7 @@ use learner::LearnerCore;
 use policy::method::{ReplayRatio, RunSpec, Select};
 use transport::DataPlane;
 
-use crate::config::{run_checkpoint, Resolved, RunOverrides};
+use crate::config::{check_train, run_checkpoint, ReplayRatioArg, Resolved, RunOverrides};
 use lab::evaluation::final_evaluation;
 use lab::run::RunTiming;
 
@@ -51,8 +51,8 @@ pub struct TrainArgs {
     /// learner trains flat out, taking episodes while it has done between MIN and MAX updates
     /// per episode) or `fixed` (train.rl.batches_per_episode each) [default: the config's
     /// train.rl.replay_ratio, else 4,20; a resumed run keeps its own; --single-process: fixed]
-    #[arg(long)]
-    pub replay_ratio: Option<String>,
+    #[arg(long, value_name = "MIN,MAX|fixed", allow_hyphen_values = true, value_parser = ReplayRatioArg::parse)]
+    pub replay_ratio: Option<ReplayRatioArg>,
 }
 
 fn resolve(args: &TrainArgs) -> anyhow::Result<Resolved> {
@@ -227,7 +227,11 @@ fn distributed(args: TrainArgs) -> anyhow::Result<()> {
         .out
         .clone()
         .unwrap_or_else(|| resolved.default_run_dir());
-    resolved.file.train.rl.replay_ratio = distributed_replay_ratio(&args, &resolved, &out)?;
+    let (ratio, whence) = distributed_replay_ratio(&args, &resolved, &out)?;
+    resolved.file.train.rl.replay_ratio = ratio;
+    // The schedule with its ratio, before anything is written or started (a bad ratio would
+    // otherwise start every process and be refused by the learner).
+    check_train(&resolved.file.train, &whence)?;
     let select = &mut resolved.file.train.select;
     if args.no_evaluator && *select != Select::Last {
         // Without the evaluator nothing is validated and no snapshot is kept: the run's policy
@@ -254,14 +258,14 @@ fn distributed(args: TrainArgs) -> anyhow::Result<()> {
 /// The replay ratio of a distributed run: `--replay-ratio` if given; on `--resume`, the one the
 /// run was started with (its `config.toml`), so that a run resumes to its own schedule; else
 /// the config's, else [`ReplayRatio::LOCAL_DEFAULT`] (Experiment 18: level with the shipped
-/// models in about half the time of one process).
+/// models in about half the time of one process). With it, where it comes from (for errors).
 fn distributed_replay_ratio(
     args: &TrainArgs,
     resolved: &Resolved,
     out: &std::path::Path,
-) -> anyhow::Result<Option<ReplayRatio>> {
-    if let Some(s) = &args.replay_ratio {
-        return ReplayRatio::parse_arg(s).map_err(anyhow::Error::msg);
+) -> anyhow::Result<(Option<ReplayRatio>, String)> {
+    if let Some(ReplayRatioArg(r)) = args.replay_ratio {
+        return Ok((r, "--replay-ratio".into()));
     }
     let started = out.join("config.toml");
     if args.resume && started.exists() {
@@ -271,14 +275,21 @@ fn distributed_replay_ratio(
                 started.display()
             )
         })?;
-        return Ok(file.train.rl.replay_ratio);
+        let whence = format!(
+            "{} (the run's own config; --replay-ratio overrides it)",
+            started.display()
+        );
+        return Ok((file.train.rl.replay_ratio, whence));
     }
-    Ok(resolved
-        .file
-        .train
-        .rl
-        .replay_ratio
-        .or(Some(ReplayRatio::LOCAL_DEFAULT)))
+    Ok((
+        resolved
+            .file
+            .train
+            .rl
+            .replay_ratio
+            .or(Some(ReplayRatio::LOCAL_DEFAULT)),
+        "the run's config".into(),
+    ))
 }
 
 pub fn run(args: TrainArgs) -> anyhow::Result<()> {
@@ -298,13 +309,10 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
         .context("cannot install the Ctrl-C handler")?;
     }
     let resolved = resolve(&args)?;
-    if let Some(s) = &args.replay_ratio {
-        if ReplayRatio::parse_arg(s)
-            .map_err(anyhow::Error::msg)?
-            .is_some()
-        {
-            return Err(trainer::TrainerError::AdaptiveNeedsProcesses.into());
-        }
+    if let Some(ReplayRatioArg(Some(_))) = args.replay_ratio {
+        anyhow::bail!(
+            "--replay-ratio MIN,MAX (the adaptive mode) needs a distributed run; --single-process runs the fixed schedule of train.rl.batches_per_episode updates per episode: drop one of the two"
+        );
     }
     if resolved.file.train.rl.replay_ratio.is_some() {
         // Before anything is written: the lockstep schedule has one round per episode.
@@ -323,6 +331,16 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
 
     let (mut core, resolved) = if args.resume {
         let mut loaded = checkpoint::load(&latest)?;
+        if let Some(r) = loaded.core.config().rl.replay_ratio {
+            // A distributed run in the adaptive mode (the default): its schedule is in its own
+            // config.toml and checkpoint, not in anything the user wrote.
+            anyhow::bail!(
+                "{} was trained as a distributed run with the adaptive replay ratio {},{} (needs a distributed run; --single-process runs only the fixed schedule): resume it without --single-process",
+                out.display(),
+                r.min,
+                r.max
+            );
+        }
         if let Some(n) = args.run.rl_episodes {
             loaded.core.set_rl_episodes(n);
         }
@@ -384,7 +402,15 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
         train.rl.episodes
     );
     let mut bars = Bars::default();
+    // TensorBoard files in out/tb/, from metrics.jsonl as it grows (a thread of its own).
+    let board = tboard::Follower::spawn(
+        &out,
+        tboard::Mode::SingleProcess {
+            updates_per_episode: train.rl.batches_per_episode as f64,
+        },
+    );
     let (exit, t) = trainer::run(&mut core, &run, &stop, &mut bars)?;
+    drop(board);
     timing.add_s("warm_start_s", t.warm_start_s);
     timing.add_s("rl_s", t.rl_s);
     timing.add_s("validation_s", t.validation_s);
@@ -424,8 +450,13 @@ mod tests {
         train: TrainArgs,
     }
 
+    fn try_args(extra: &[&str]) -> Result<TrainArgs, clap::Error> {
+        Cli::try_parse_from(std::iter::once("fsrl-train").chain(extra.iter().copied()))
+            .map(|c| c.train)
+    }
+
     fn args(extra: &[&str]) -> TrainArgs {
-        Cli::parse_from(std::iter::once("fsrl-train").chain(extra.iter().copied())).train
+        try_args(extra).unwrap()
     }
 
     #[test]
@@ -434,7 +465,8 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let out = dir.path().join("run");
         let o = out.to_str().unwrap();
-        let ratio = |a: &TrainArgs| distributed_replay_ratio(a, &resolve(a).unwrap(), &out);
+        let ratio =
+            |a: &TrainArgs| distributed_replay_ratio(a, &resolve(a).unwrap(), &out).map(|r| r.0);
         let bounds = |min, max| Some(ReplayRatio { min, max });
 
         assert_eq!(
@@ -464,8 +496,24 @@ mod tests {
             ratio(&args(&["--out", o, "--replay-ratio", "5,6"])).unwrap(),
             bounds(5.0, 6.0)
         );
-        let e = ratio(&args(&["--out", o, "--replay-ratio", "5"])).unwrap_err();
-        assert!(format!("{e:#}").contains("MIN,MAX"), "{e:#}");
+        // A bad flag is refused as the arguments are parsed (issue 44): syntax and bounds.
+        for (bad, says) in [
+            ("5", "MIN,MAX"),
+            ("nan", "MIN,MAX"),
+            ("inf", "MIN,MAX"),
+            ("5,1", "must not exceed"),
+            ("-1,4", "min >= 0"),
+            ("0,0", "max > 0"),
+            ("nan,4", "finite"),
+            ("2,inf", "finite"),
+        ] {
+            let e = try_args(&["--out", o, "--replay-ratio", bad]).err();
+            let e = e.map(|e| e.to_string()).unwrap_or_default();
+            assert!(
+                e.contains(says) && e.contains("--replay-ratio"),
+                "{bad}: {e}"
+            );
+        }
 
         // A run started with the fixed schedule resumes with it, whatever today's default.
         std::fs::create_dir_all(&out).unwrap();

@@ -55,3 +55,37 @@ impl RunOverrides {
         Ok(f)
     }
 }
+
+/// `--replay-ratio` of `fsrl train` and `fsrl reproduce`, parsed once (by clap): `MIN,MAX`,
+/// the adaptive mode's bounds, or `fixed` (`None`: `train.rl.batches_per_episode` updates per
+/// episode).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ReplayRatioArg(pub Option<policy::method::ReplayRatio>);
+
+impl ReplayRatioArg {
+    /// clap's value parser: the syntax, and the bounds as [`policy::method::TrainConfig::problems`]
+    /// checks them (how they go with the rest of the run's `[train]` is checked with the
+    /// resolved config, before anything is written or started).
+    pub fn parse(s: &str) -> Result<Self, String> {
+        let ratio = policy::method::ReplayRatio::parse_arg(s)?;
+        if let Some(r) = ratio {
+            let mut alone = policy::method::TrainConfig::default();
+            alone.rl.replay_ratio = Some(r);
+            if let Some(p) = alone.problems().into_iter().next() {
+                return Err(p);
+            }
+        }
+        Ok(Self(ratio))
+    }
+}
+
+/// The problems of a run's `[train]` once its replay ratio is set (a bad `--replay-ratio`, or a
+/// bad `train.rl.replay_ratio` in a resumed run's own `config.toml`), as one error naming
+/// `whence`; nothing when it is sound.
+pub fn check_train(train: &policy::method::TrainConfig, whence: &str) -> anyhow::Result<()> {
+    let problems = train.problems();
+    if problems.is_empty() {
+        return Ok(());
+    }
+    anyhow::bail!("{whence}: {}", problems.join("; "))
+}

@@ -88,10 +88,14 @@ fn a_tiny_grid_is_trained_exported_evaluated_reported_and_then_skipped() {
     );
     assert!(!dir.join("runs").exists() && !dir.join("models").exists());
 
-    let export = fsrl(dir).args(["export-model", "--help"]).output().unwrap();
-    if !export.status.success() {
-        eprintln!("SKIPPED the rest: this build has no `fsrl export-model` yet");
-        return;
+    // Every subcommand the grid runs exists (a failing help is a failure, not a reason to skip).
+    for sub in ["train", "export-model", "eval", "compare"] {
+        let help = fsrl(dir).args([sub, "--help"]).output().unwrap();
+        assert!(
+            help.status.success(),
+            "fsrl {sub} --help: {}",
+            String::from_utf8_lossy(&help.stderr)
+        );
     }
 
     let o = reproduce(dir, "tiny.toml", &[]).output().unwrap();
@@ -241,6 +245,31 @@ fn bad_names_are_refused_before_anything_starts() {
         assert!(stderr.contains(needle), "missing {needle:?} in\n{stderr}");
     }
     assert!(!dir.join("runs").exists() && !dir.join("models").exists());
+}
+
+/// Issue 44: a bad `--replay-ratio` is refused with one line before anything starts (it used to
+/// pass the grid's check and start ORCA's evaluation and the first run first).
+#[test]
+fn a_bad_replay_ratio_is_refused_before_anything_starts() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path();
+    std::fs::write(dir.join("tiny.toml"), TINY).unwrap();
+    for bad in ["5,1", "-1,4", "nan", "0,0", "inf"] {
+        let o = reproduce(dir, "tiny.toml", &["--replay-ratio", bad])
+            .output()
+            .unwrap();
+        let (_, stderr) = text(&o);
+        assert!(!o.status.success(), "{bad}: {stderr}");
+        let errors: Vec<&str> = stderr.lines().filter(|l| l.starts_with("error")).collect();
+        assert!(
+            errors.len() == 1 && errors[0].contains("--replay-ratio"),
+            "{bad}: one line naming the flag:\n{stderr}"
+        );
+        assert!(
+            !dir.join("runs").exists() && !dir.join("models").exists(),
+            "{bad}: something started"
+        );
+    }
 }
 
 #[test]

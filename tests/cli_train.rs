@@ -413,3 +413,90 @@ fn best_validation_selection_keeps_snapshots_and_the_run_uses_the_best() {
         String::from_utf8_lossy(&o.stderr)
     );
 }
+
+/// Issue 44: a bad replay ratio is refused with one line before anything is written or
+/// started, whether a flag (`--replay-ratio`), a config file (bounds that do not fit its
+/// `batches_per_episode`) or a resumed run's own `config.toml` says it. Before, all but the
+/// unparsable ones started every process and were refused by the learner, and stayed in the
+/// run's config.
+#[test]
+fn a_bad_replay_ratio_is_refused_before_anything_starts() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("run");
+    let refused = |args: &[&str], says: &str| {
+        let o = fsrl().arg("train").args(args).output().unwrap();
+        let stderr = String::from_utf8_lossy(&o.stderr);
+        assert!(!o.status.success(), "{args:?}: {stderr}");
+        let errors: Vec<&str> = stderr.lines().filter(|l| l.starts_with("error")).collect();
+        assert!(
+            errors.len() == 1 && errors[0].contains(says),
+            "{args:?}: one line naming {says}:\n{stderr}"
+        );
+        stderr.into_owned()
+    };
+    let o = out.to_str().unwrap();
+    for bad in ["5,1", "-1,4", "nan", "0,0", "inf"] {
+        refused(&["--replay-ratio", bad, "--out", o], "--replay-ratio");
+        assert!(!out.exists(), "{bad}: the run directory was written");
+    }
+    // The default bounds with a config that cannot have them.
+    let cfg = dir.path().join("zero.toml");
+    std::fs::write(&cfg, "[train.rl]\nbatches_per_episode = 0\n").unwrap();
+    let c = cfg.to_str().unwrap();
+    refused(&["--config", c, "--out", o], "batches_per_episode");
+    assert!(!out.exists(), "the run directory was written");
+    // A run whose own config.toml has bounds no run can have (written by an older fsrl).
+    std::fs::create_dir_all(&out).unwrap();
+    std::fs::write(
+        out.join("config.toml"),
+        "[train.rl]\nreplay_ratio = { min = 5, max = 1 }\n",
+    )
+    .unwrap();
+    refused(&["--resume", "--out", o], "config.toml");
+    assert!(!out.join("logs").exists(), "processes were started");
+}
+
+/// Issue 44: `--single-process --resume` of a run trained as a distributed run in the adaptive
+/// mode (the default) says so, and what to do; it used to ask the user to drop a
+/// `replay_ratio` line they never wrote.
+#[test]
+fn a_default_distributed_run_does_not_resume_in_one_process() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("run");
+    let cfg = sim::SimConfig::default();
+    let mut train = policy::method::TrainConfig::default();
+    train.rl.replay_ratio = Some(policy::method::ReplayRatio::LOCAL_DEFAULT);
+    let core = learner::LearnerCore::new(
+        policy::method::Method::Sarl,
+        train,
+        cfg.humans.count,
+        cfg.dt_s,
+        0,
+    )
+    .unwrap();
+    let run = learner::checkpoint::RunInfo {
+        run_id: "run".into(),
+        setting: "env1-invisible".into(),
+        run_seed: 0,
+        accepted_below: Default::default(),
+    };
+    std::fs::create_dir_all(out.join("checkpoints")).unwrap();
+    learner::checkpoint::save(&out.join("checkpoints/latest.ckpt"), &core, &cfg, &run).unwrap();
+    let o = fsrl()
+        .args(["train", "--single-process", "--resume", "--out"])
+        .arg(&out)
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success(), "{stderr}");
+    assert!(
+        stderr.contains("trained as a distributed run")
+            && stderr.contains("without --single-process")
+            && !stderr.contains("replay_ratio line"),
+        "{stderr}"
+    );
+    assert!(
+        !out.join("config.toml").exists(),
+        "the run's config was written"
+    );
+}

@@ -656,6 +656,74 @@ fn hostile_but_well_formed_episodes_neither_stop_nor_poison_the_learner() {
     assert!(lines <= 14, "{lines} log lines for 4097 refusals");
 }
 
+/// Issue 44: the learner drains liveliness during imitation too. A client declares more
+/// liveliness tokens than the learner's liveliness queue holds (1024), then sends episodes over
+/// the same link, all during the warm start: the learner still reads them (and refuses them as
+/// it should then). Before, nothing read liveliness until training started: the full queue held
+/// zenoh's reception of that link, and the episodes behind the tokens were not seen.
+#[test]
+fn a_liveliness_flood_during_imitation_does_not_hold_the_learners_link() {
+    let run = Run::new("aliveflood", "zenoh", "");
+    // A long imitation, so the flood and what follows it happen in it.
+    std::fs::write(
+        run.config(),
+        std::fs::read_to_string(run.config())
+            .unwrap()
+            .replace("episodes = 6\nepochs = 1", "episodes = 30\nepochs = 200"),
+    )
+    .unwrap();
+    let _procs = Children(vec![run.spawn("learner", &["--rl-episodes", "5"])]);
+    let mon = run.monitor(4);
+    let mut w = Watch::new(&mon);
+    w.until("imitation to start", &run, |w| {
+        w.value(LEARNER, "imitation_epochs").is_some() || w.value(LEARNER, "demo_target").is_some()
+    });
+    let q = |s: &str| serde_json::to_string(s).unwrap();
+    let mut c = zenoh::Config::default();
+    for (k, v) in [
+        ("mode", q("client")),
+        ("connect/endpoints", format!("[{}]", q(&run.endpoint()))),
+        ("scouting/multicast/enabled", "false".into()),
+    ] {
+        c.insert_json5(k, &v).unwrap();
+    }
+    let session = zenoh::Wait::wait(zenoh::open(c)).unwrap();
+    let id = RunId::new(run.id.clone()).unwrap();
+    const TOKENS: u32 = 3000;
+    let _tokens: Vec<_> = (0..TOKENS)
+        .map(|k| {
+            let member = keys::Member {
+                sender: SenderId::actor(10_000 + k),
+                instance: 1,
+            };
+            zenoh::Wait::wait(session.liveliness().declare_token(keys::alive(&id, member))).unwrap()
+        })
+        .collect();
+    let header = proto::Header::new::<proto::TransitionBatch>(id.clone(), SenderId::actor(9), 0, 1);
+    let bytes = proto::encode(&header, &honest_batch(0, 11)).unwrap();
+    const SENT: f64 = 3.0;
+    for _ in 0..SENT as u32 {
+        let key = keys::transitions(&id, 9);
+        zenoh::Wait::wait(session.put(key.key_expr(), bytes.clone())).unwrap();
+    }
+    w.until(
+        "the episodes behind the tokens, or the end of imitation",
+        &run,
+        |w| {
+            w.value(LEARNER, "refused_in_imitation").unwrap_or(0.0) >= SENT
+                || w.value(LEARNER, "imitation_done").unwrap_or(0.0) > 0.5
+        },
+    );
+    assert!(
+        w.value(LEARNER, "imitation_done").unwrap_or(0.0) < 0.5
+            && w.value(LEARNER, "actors_alive").unwrap_or(0.0) >= f64::from(TOKENS),
+        "during imitation the learner saw {:?} of {SENT} episodes and {:?} of {TOKENS} actors\n{}",
+        w.value(LEARNER, "refused_in_imitation"),
+        w.value(LEARNER, "actors_alive"),
+        run.logs()
+    );
+}
+
 /// Fair intake (Experiment 16): iceoryx2 serves its publishers' queues in a fixed order, so a
 /// learner that took one message per round of updates handed over actor 0's next episode every
 /// time and starved actor 1 until its publications timed out. The learner now takes in everything

@@ -153,11 +153,30 @@ fn an_older_checkpoint_restored_under_a_running_actor_resynchronises_it() {
             .unwrap()
             .expect("the second learner stops cleanly");
         assert_eq!(exit, LearnerExit::Stopped);
-        // Exactly once each: every accepted episode was trained on, none twice.
+        // Exactly once each: every accepted episode was trained on, none twice. With one actor
+        // the checkpoint's two counts move together whatever happens (each accepted episode is
+        // an RL episode), so the training log says which episode each RL episode was: RL
+        // episodes 0..rl once each, RL episode e being actor 0's episode e (an episode trained
+        // twice, or one skipped, breaks the pairing).
         let (rl, accepted) = checkpointed(&run_dir).unwrap();
         assert_eq!(
             rl, accepted,
             "RL episodes against actor 0's accepted episodes"
+        );
+        let log = std::fs::read_to_string(run_dir.join("metrics.jsonl")).unwrap();
+        let trained: Vec<(u64, u64, u64)> = log
+            .lines()
+            .map(|l| serde_json::from_str::<serde_json::Value>(l).unwrap())
+            .filter(|v| v["phase"] == "rl")
+            .map(|v| {
+                let n = |k: &str| v[k].as_u64().unwrap_or(u64::MAX);
+                (n("episode"), n("actor"), n("actor_episode"))
+            })
+            .collect();
+        let expected: Vec<(u64, u64, u64)> = (0..rl).map(|e| (e, 0, e)).collect();
+        assert_eq!(
+            trained, expected,
+            "the training log's RL episodes as (episode, actor, actor's episode)"
         );
         assert!(
             lost >= (ahead - 2) as f64,

@@ -289,7 +289,12 @@ pub enum EvaluatorExit {
     Stopped,
 }
 
-/// Runs until the learner finishes the run (after evaluating the final weights) or `stop`.
+/// How long the evaluator waits, once the run is finished, for the final weights the learner
+/// announced (it repeats them until the evaluator leaves) before it gives up with an error.
+const FINAL_WEIGHTS_PATIENCE: Duration = Duration::from_secs(120);
+
+/// Runs until the learner finishes the run (after validating and, with `final_report`,
+/// evaluating its final weights: the version the `Finished` control names, or newer) or `stop`.
 pub fn run(
     transport: &Transport,
     spec: &RunSpec,
@@ -329,19 +334,39 @@ pub fn run(
     // them, so no version, however high, silences evaluation or validation until the learner
     // passes it.
     let mut last_version: Option<u64> = None;
+    // When the learner was first seen finished with newer weights than those here.
+    let mut finished_seen: Option<std::time::Instant> = None;
     loop {
         if stop.load(Ordering::SeqCst) {
             return Ok(EvaluatorExit::Stopped);
         }
-        let finished = control
+        // The learner sends its final weights before `Finished`, whose header names their
+        // version: until weights at least that new are here, the run's last weights are not.
+        let final_version = control
             .latest()?
-            .is_some_and(|c| c.body.phase == RunPhase::Finished);
+            .filter(|c| c.body.phase == RunPhase::Finished)
+            .map(|c| c.header.policy_version);
         let latest = weights.latest()?;
         let Some(w) = latest else {
             let _ = weights.next(Duration::from_millis(200))?;
             continue;
         };
         let version = w.body.version;
+        let finished = match final_version {
+            Some(last) if version < last => {
+                let since = *finished_seen.get_or_insert_with(std::time::Instant::now);
+                if since.elapsed() > FINAL_WEIGHTS_PATIENCE {
+                    return Err(ProcessError::Other(format!(
+                        "the run finished with weights version {last}, but the newest that arrived in {} s is {version}",
+                        FINAL_WEIGHTS_PATIENCE.as_secs()
+                    )));
+                }
+                let _ = weights.next(Duration::from_millis(200))?;
+                continue;
+            }
+            Some(_) => true,
+            None => false,
+        };
         // The RL episodes the weights were trained on, as the learner says; a learner that does
         // not say advanced its version once per imitation epoch and once per RL episode.
         let trained = w

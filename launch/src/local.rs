@@ -119,6 +119,31 @@ fn validation_line(m: &proto::Metrics) -> Option<serde_json::Value> {
     }))
 }
 
+/// The updates per RL episode the learner realised: its final counters (the checkpoint it wrote
+/// at the end) from where it started counting, which every metrics message of its training
+/// names (`rl_start_episodes`, `rl_start_updates`: a resumed run counts from its checkpoint).
+/// `None` when `learner` names no start (a learner that never reached training).
+fn realised_ratio(out: &Path, learner: &proto::Metrics) -> anyhow::Result<Option<f64>> {
+    let (Some(e0), Some(u0)) = (
+        learner.values.get("rl_start_episodes"),
+        learner.values.get("rl_start_updates"),
+    ) else {
+        return Ok(None);
+    };
+    let path = out.join("checkpoints").join("latest.ckpt");
+    let c = learner::checkpoint::load(&path)
+        .with_context(|| format!("cannot read {}", path.display()))?
+        .core
+        .counters();
+    let episodes = c.rl_episodes.saturating_sub(*e0 as u64);
+    let updates = c.updates.saturating_sub(*u0 as u64);
+    Ok(Some(if episodes == 0 {
+        0.0
+    } else {
+        updates as f64 / episodes as f64
+    }))
+}
+
 /// What to launch.
 pub struct Launch {
     /// The fsrl executable: its `learner`, `actor` and `evaluator` subcommands are the processes.
@@ -443,6 +468,20 @@ pub fn run(launch: Launch, stop: &AtomicBool) -> anyhow::Result<()> {
     timing.add_s("rl_s", (rl_end_s - warm).max(0.0));
     timing.add_s("final_evaluation_s", final_start.elapsed().as_secs_f64());
     timing.add_s("total_s", started.elapsed().as_secs_f64());
+    // The realised replay ratio from the learner's final counters, not from whichever of its
+    // metrics messages arrived last (its last rounds of updates come after the last episode).
+    if let Some((_, m)) = last_values
+        .iter_mut()
+        .find(|(k, _)| k.starts_with("learner"))
+    {
+        match realised_ratio(&out, m) {
+            Ok(Some(r)) => {
+                m.values.insert("updates_per_episode".into(), r);
+            }
+            Ok(None) => {}
+            Err(e) => eprintln!("warning: the realised replay ratio is not known: {e:#}"),
+        }
+    }
     let summary = distributed_summary(&last_values, &mut timing);
     timing.write(&out)?;
     let report = out.join("report.md");

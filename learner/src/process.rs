@@ -52,6 +52,8 @@ pub enum ProcessError {
     },
     #[error("invalid weights: {0}")]
     Weights(String),
+    #[error("the adaptive mode made no update in {rounds} rounds in a row ({skipped} batches skipped for a non-finite loss or gradient): training has diverged")]
+    NoProgress { rounds: u64, skipped: u64 },
 }
 
 /// How a learner run ended.
@@ -151,6 +153,8 @@ struct Learner<'a> {
     stored: Option<(Outcome, u32, f64, f64, u32, u64)>,
     /// Log lines that could not be written (a full disk): counted, never fatal.
     log_failures: u64,
+    /// Rounds of the adaptive mode in a row that made no update (see [`MAX_IDLE_ROUNDS`]).
+    idle_rounds: u64,
 }
 
 impl Learner<'_> {
@@ -196,54 +200,19 @@ impl Learner<'_> {
 
     /// Tracks who is alive; returns whether the set of actor ids alive changed. At most
     /// [`MAX_ACTORS`] actor ids are tracked (further ones refused, counted and logged); an
-    /// actor id whose last instance leaves loses its ack publisher.
+    /// actor that joins is acknowledged, an actor id whose last instance leaves loses its ack
+    /// publisher.
     fn on_alive(&mut self, ev: AliveEvent) -> bool {
-        match ev {
-            AliveEvent::Joined(m) if m.sender.role == Role::Actor => {
-                let index = m.sender.index;
-                match self.actors_alive.join(index, m.instance, MAX_ACTORS) {
-                    Joined::Refused => {
-                        warn_sometimes(
-                            "alive",
-                            self.actors_alive.refused,
-                            format_args!("ignoring actor {m}: {MAX_ACTORS} actor ids are alive"),
-                        );
-                        false
-                    }
-                    Joined::Known => false,
-                    joined => {
-                        tracing::info!(actor = %m, "actor joined");
-                        self.ack(index);
-                        joined == Joined::NewId
-                    }
-                }
+        match track_alive(&mut self.actors_alive, &mut self.evaluators_alive, ev) {
+            Membership::Unchanged => false,
+            Membership::ActorJoined { index, new_id } => {
+                self.ack(index);
+                new_id
             }
-            AliveEvent::Left(m) if m.sender.role == Role::Actor => {
-                let index = m.sender.index;
-                match self.actors_alive.leave(index, m.instance) {
-                    Left::Unknown => false,
-                    Left::Instance => {
-                        tracing::warn!(actor = %m, "actor left");
-                        false
-                    }
-                    Left::LastInstance => {
-                        tracing::warn!(actor = %m, "actor left");
-                        self.acks.remove(&index);
-                        true
-                    }
-                }
+            Membership::ActorGone(index) => {
+                self.acks.remove(&index);
+                true
             }
-            AliveEvent::Joined(m) if m.sender.role == Role::Evaluator => {
-                if self.evaluators_alive.len() < MAX_ACTORS {
-                    self.evaluators_alive.insert(m);
-                }
-                false
-            }
-            AliveEvent::Left(m) if m.sender.role == Role::Evaluator => {
-                self.evaluators_alive.remove(&m);
-                false
-            }
-            _ => false,
         }
     }
 
@@ -414,6 +383,10 @@ impl Learner<'_> {
             ),
             ("policy_lag_p95", self.window.lag_quantile(0.95) as f64),
             ("updates_per_episode", updates_per_episode),
+            // Where this process started counting the ratio: with the final counters of the
+            // checkpoint, the run's realised ratio whichever message arrives last (`launch`).
+            ("rl_start_episodes", e0 as f64),
+            ("rl_start_updates", u0 as f64),
             ("wait_s", self.wait.as_secs_f64()),
             ("train_s", self.train.as_secs_f64()),
             ("replay_size", self.core.replay().len() as f64),
@@ -452,13 +425,29 @@ impl Learner<'_> {
         Ok(())
     }
 
-    /// The adaptive mode's round of `batches` updates, not tied to an episode.
+    /// The adaptive mode's round of `batches` updates, not tied to an episode. Its episodes
+    /// wait for updates, so rounds that make none would starve the actors for ever: a skipped
+    /// refresh of the targets re-synchronises the target network or fails
+    /// ([`LearnerCore::train_round`]), and [`MAX_IDLE_ROUNDS`] rounds in a row without an update
+    /// (every batch non-finite) fail too, loudly.
     fn train_round(&mut self, batches: u32) -> Result<(), ProcessError> {
         let trained = Instant::now();
+        let before = self.core.counters().updates;
         let loss = self.core.train_round(batches)?;
         self.train += trained.elapsed();
         if loss.is_finite() {
             self.last_loss = loss;
+        }
+        if self.core.counters().updates > before {
+            self.idle_rounds = 0;
+        } else {
+            self.idle_rounds += 1;
+            if self.idle_rounds >= MAX_IDLE_ROUNDS {
+                return Err(ProcessError::NoProgress {
+                    rounds: self.idle_rounds,
+                    skipped: self.core.skipped_batches(),
+                });
+            }
         }
         Ok(())
     }
@@ -671,6 +660,78 @@ impl Learner<'_> {
     }
 }
 
+/// What a liveliness event changed (see [`track_alive`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Membership {
+    Unchanged,
+    /// An instance of actor `index` joined (`new_id`: the id's first).
+    ActorJoined {
+        index: u32,
+        new_id: bool,
+    },
+    /// The last instance of actor `index` left.
+    ActorGone(u32),
+}
+
+/// Tracks who is alive, with the log lines (at most [`MAX_ACTORS`] actor ids and as many
+/// evaluators; a refusal is counted and logged at powers of two). It needs no more of the
+/// learner than these two sets, so the warm start drains liveliness with it too (a flood of
+/// tokens then cannot fill the watcher's queue and hold the link it arrives on).
+fn track_alive(
+    actors: &mut AliveActors,
+    evaluators: &mut HashSet<proto::Member>,
+    ev: AliveEvent,
+) -> Membership {
+    match ev {
+        AliveEvent::Joined(m) if m.sender.role == Role::Actor => {
+            let index = m.sender.index;
+            match actors.join(index, m.instance, MAX_ACTORS) {
+                Joined::Refused => {
+                    warn_sometimes(
+                        "alive",
+                        actors.refused,
+                        format_args!("ignoring actor {m}: {MAX_ACTORS} actor ids are alive"),
+                    );
+                    Membership::Unchanged
+                }
+                Joined::Known => Membership::Unchanged,
+                joined => {
+                    tracing::info!(actor = %m, "actor joined");
+                    Membership::ActorJoined {
+                        index,
+                        new_id: joined == Joined::NewId,
+                    }
+                }
+            }
+        }
+        AliveEvent::Left(m) if m.sender.role == Role::Actor => {
+            let index = m.sender.index;
+            match actors.leave(index, m.instance) {
+                Left::Unknown => Membership::Unchanged,
+                Left::Instance => {
+                    tracing::warn!(actor = %m, "actor left");
+                    Membership::Unchanged
+                }
+                Left::LastInstance => {
+                    tracing::warn!(actor = %m, "actor left");
+                    Membership::ActorGone(index)
+                }
+            }
+        }
+        AliveEvent::Joined(m) if m.sender.role == Role::Evaluator => {
+            if evaluators.len() < MAX_ACTORS {
+                evaluators.insert(m);
+            }
+            Membership::Unchanged
+        }
+        AliveEvent::Left(m) if m.sender.role == Role::Evaluator => {
+            evaluators.remove(&m);
+            Membership::Unchanged
+        }
+        _ => Membership::Unchanged,
+    }
+}
+
 /// The actors alive, by id: each id with the liveliness instances alive under it. At most `cap`
 /// ids are admitted, however many instances an id declares (a flood of tokens under one id
 /// takes one place, so the actors that join after it are still admitted).
@@ -757,6 +818,9 @@ enum Accepted {
     Refused,
 }
 
+/// Rounds of the adaptive mode in a row without an update before the learner gives up.
+const MAX_IDLE_ROUNDS: u64 = 1000;
+
 /// Most received episodes held between rounds of updates (every actor's transport queue is
 /// bounded too; duplicates among them are acknowledged and dropped at once).
 const MAX_PENDING: usize = 4096;
@@ -807,7 +871,7 @@ pub fn run_with_probe(
         run_seed: spec.seed,
     };
     let log_path = opts.run_dir.join("metrics.jsonl");
-    let (core, accepted_below) = match store.load_checkpoint(&expected)? {
+    let (mut core, accepted_below) = match store.load_checkpoint(&expected)? {
         Some(loaded) => {
             tracing::info!(
                 rl_episodes = loaded.core.counters().rl_episodes,
@@ -827,6 +891,7 @@ pub fn run_with_probe(
             (core, BTreeMap::new())
         }
     };
+    core.set_action_count(sim::ActionSet::for_config(&sim_cfg).len());
     let (_lock, wal, wal_records) = store.into_parts();
     // The log goes back to the checkpoint (the log's episodes after it are replayed below and
     // logged again); without a checkpoint the run starts again from nothing.
@@ -881,6 +946,7 @@ pub fn run_with_probe(
         wall0,
         stored: None,
         log_failures: 0,
+        idle_rounds: 0,
     };
     // Episodes acknowledged after the last checkpoint: back from the log, trained on again;
     // those the checkpoint already holds (a crash before the log was emptied) are dropped. The
@@ -931,8 +997,15 @@ pub fn run_with_probe(
             Epoch(u32, u32, f32),
         }
         let mut shown = Shown::Demo(0, spec.train.imitation.episodes);
+        let (actors_alive, evaluators_alive) = (&mut l.actors_alive, &mut l.evaluators_alive);
         let finished = imitation::run(&mut l.core, spec, stop, |p| {
             log.observe(&p, (wall0 + start.elapsed()).as_secs_f64());
+            // Who is alive, as in training: the watcher's queue is bounded and, once full,
+            // holds back the link its tokens arrive on (and everything else on it). Actors that
+            // join are acknowledged when training starts.
+            while let Ok(Some(ev)) = alive.recv_timeout(Duration::ZERO) {
+                track_alive(actors_alive, evaluators_alive, ev);
+            }
             // Nobody should send episodes now (actors wait for the training phase): drain and
             // count, so nothing piles up in the subscriber's queue during imitation. Progress
             // comes after every demonstration and every batch, so a long epoch cannot leave the
@@ -972,6 +1045,8 @@ pub fn run_with_probe(
                 }
                 m.values
                     .insert("refused_in_imitation".into(), refused as f64);
+                m.values
+                    .insert("actors_alive".into(), actors_alive.len() as f64);
                 let _ = metrics.publish(0, &m);
             }
         })?;
@@ -1006,6 +1081,12 @@ pub fn run_with_probe(
     );
     l.publish_weights()?;
     l.publish_control();
+    // The actors that joined during the warm start learn where to go on; the first metrics
+    // of training name where its replay ratio is counted from (`rl_start_*`).
+    for id in l.live_actor_ids() {
+        l.ack(id);
+    }
+    l.publish_metrics()?;
     let mut last_tick = Instant::now();
     let every = spec.train.checkpoint_every_episodes;
     let mut checkpoint_due = false;
@@ -1098,6 +1179,11 @@ pub fn run_with_probe(
             l.train_stored()?;
             l.publish_weights()?;
         }
+        if l.phase() != RunPhase::Training {
+            // The last episode: "finished" goes out only after the final weights (below), so
+            // that what the evaluator takes as the run's last weights are those (issue 44).
+            break;
+        }
         l.publish_control();
         published_since_tick = true;
         let done = l.core.counters().rl_episodes;
@@ -1118,7 +1204,9 @@ pub fn run_with_probe(
         }
     }
 
-    // The run is over.
+    // The run is over: the final weights (carrying the final RL episode count) before the
+    // `Finished` control, which names their version (its header's policy version): an evaluator
+    // that sees `Finished` validates weights of at least that version.
     l.checkpoint()?;
     l.publish_weights()?;
     l.publish_control();

@@ -2,10 +2,14 @@
 //! env1-invisible far more often than a random policy; a short RL run keeps the loss finite and
 //! moves the weights; a short run is reproducible bit for bit; checkpoints round-trip. `crash`:
 //! the learner's persistence through kills, torn writes, power losses and a full disk;
-//! `imitation_retry`: the learner process retries the checkpoint after imitation on a full disk.
+//! `imitation_retry`: the learner process retries the checkpoint after imitation on a full disk;
+//! `finish`: the final weights before `Finished`, validated by the evaluator, and the adaptive
+//! mode's rounds never repeat a non-finite target refresh for ever.
 
 #[path = "learning/crash.rs"]
 mod crash;
+#[path = "learning/finish.rs"]
+mod finish;
 #[path = "learning/imitation_retry.rs"]
 mod imitation_retry;
 
