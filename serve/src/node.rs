@@ -7,8 +7,9 @@
 //! takes the deadline (its tick, or the instant an input turns stale) before any input, so the
 //! staleness check and the stop run every period under any flood; a people message holding
 //! more than `max_people` is refused and a decision over its budget dropped, so no one step
-//! takes long; `cmd_vel` is published with congestion control `Drop`, so a subscriber that
-//! does not read cannot block it; and queries go through a bounded queue ([`QUERY_QUEUE`],
+//! takes long; `cmd_vel` is published with congestion control `Drop` at priority `RealTime`
+//! ([`RosNode::command_publisher`]), so a subscriber that does not read cannot block it; and
+//! queries go through a bounded queue ([`QUERY_QUEUE`],
 //! refused with a reply beyond, counted) to a worker thread with its own copy of the policy,
 //! so neither a query flood nor an asker that does not read its replies reaches the loop.
 
@@ -20,7 +21,7 @@ use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 use zenoh::bytes::ZBytes;
 use zenoh::liveliness::LivelinessToken;
 use zenoh::pubsub::{Publisher, Subscriber};
-use zenoh::qos::CongestionControl;
+use zenoh::qos::{CongestionControl, Priority};
 use zenoh::query::{Query, Queryable};
 use zenoh::{Session, Wait};
 
@@ -542,17 +543,28 @@ impl RosNode {
     }
 
     /// A publisher that waits when the link is congested (the stand-in's inputs, whose
-    /// loss would stall a lockstep episode).
+    /// loss would stall a lockstep episode), at zenoh's default priority.
     pub fn publisher<M: RosMsg>(&mut self, topic: &str) -> Result<RosPublisher, ServeError> {
-        self.publisher_with::<M>(topic, CongestionControl::Block)
+        self.publisher_with::<M>(topic, CongestionControl::Block, Priority::DEFAULT)
     }
 
-    /// A publisher with congestion control `cc`: `Drop` drops a message a congested link
-    /// cannot take (after zenoh's `wait_before_drop`, 1 ms) instead of waiting for it.
-    pub fn publisher_with<M: RosMsg>(
+    /// The velocity command's publisher: a message a congested link cannot take is dropped
+    /// (`Drop`, after zenoh's `wait_before_drop`, 1 ms) instead of waited for, and it goes at
+    /// priority `RealTime`, whose queue no `Block` message shares: a query's replies (sent with
+    /// the asker's congestion control, `Block` by default, at its priority, `Data` by default)
+    /// to an asker that does not read hold the `Data` queue of that link while they wait.
+    pub fn command_publisher<M: RosMsg>(
+        &mut self,
+        topic: &str,
+    ) -> Result<RosPublisher, ServeError> {
+        self.publisher_with::<M>(topic, CongestionControl::Drop, Priority::RealTime)
+    }
+
+    fn publisher_with<M: RosMsg>(
         &mut self,
         topic: &str,
         cc: CongestionControl,
+        priority: Priority,
     ) -> Result<RosPublisher, ServeError> {
         let key = self.style.key::<M>(topic);
         let gid = self.announce::<M>(Entity::Publisher { topic })?;
@@ -560,6 +572,7 @@ impl RosNode {
             .session
             .declare_publisher(key)
             .congestion_control(cc)
+            .priority(priority)
             .wait()
             .map_err(zerr("declare publisher"))?;
         Ok(RosPublisher {
@@ -724,7 +737,7 @@ pub fn run(
     let act_key =
         proto::keys::serve_act(&opts.name).map_err(|e| ServeError::Config(e.to_string()))?;
     let mut node = RosNode::open(&opts.zenoh, opts.style.clone(), &opts.name)?;
-    let mut cmd = node.publisher_with::<Twist>(&opts.topics.cmd_vel, CongestionControl::Drop)?;
+    let mut cmd = node.command_publisher::<Twist>(&opts.topics.cmd_vel)?;
     let mut policy = match ServedPolicy::load(&opts.model, opts.robot_visible) {
         Ok(p) => p,
         Err(e) => {
