@@ -144,6 +144,22 @@ fn realised_ratio(out: &Path, learner: &proto::Metrics) -> anyhow::Result<Option
     }))
 }
 
+/// Puts the realised replay ratio of the learner's final counters ([`realised_ratio`]) in its
+/// newest metrics, for the summary and `run.json`: not the value of whichever of its metrics
+/// messages arrived last (its last rounds of updates come after the last episode).
+fn use_final_ratio(out: &Path, last: &mut std::collections::BTreeMap<String, proto::Metrics>) {
+    let Some((_, m)) = last.iter_mut().find(|(k, _)| k.starts_with("learner")) else {
+        return;
+    };
+    match realised_ratio(out, m) {
+        Ok(Some(r)) => {
+            m.values.insert("updates_per_episode".into(), r);
+        }
+        Ok(None) => {}
+        Err(e) => eprintln!("warning: the realised replay ratio is not known: {e:#}"),
+    }
+}
+
 /// What to launch.
 pub struct Launch {
     /// The fsrl executable: its `learner`, `actor` and `evaluator` subcommands are the processes.
@@ -468,20 +484,7 @@ pub fn run(launch: Launch, stop: &AtomicBool) -> anyhow::Result<()> {
     timing.add_s("rl_s", (rl_end_s - warm).max(0.0));
     timing.add_s("final_evaluation_s", final_start.elapsed().as_secs_f64());
     timing.add_s("total_s", started.elapsed().as_secs_f64());
-    // The realised replay ratio from the learner's final counters, not from whichever of its
-    // metrics messages arrived last (its last rounds of updates come after the last episode).
-    if let Some((_, m)) = last_values
-        .iter_mut()
-        .find(|(k, _)| k.starts_with("learner"))
-    {
-        match realised_ratio(&out, m) {
-            Ok(Some(r)) => {
-                m.values.insert("updates_per_episode".into(), r);
-            }
-            Ok(None) => {}
-            Err(e) => eprintln!("warning: the realised replay ratio is not known: {e:#}"),
-        }
-    }
+    use_final_ratio(&out, &mut last_values);
     let summary = distributed_summary(&last_values, &mut timing);
     timing.write(&out)?;
     let report = out.join("report.md");
@@ -496,4 +499,67 @@ pub fn run(launch: Launch, stop: &AtomicBool) -> anyhow::Result<()> {
         out.display()
     );
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use policy::method::{Method, TrainConfig};
+    use policy::rollout::{rollout, Behaviour};
+
+    /// Issue 44: the realised ratio of `run.json` is the learner's final counters from where its
+    /// training started, whatever its newest metrics message said (here a stale one).
+    #[test]
+    fn the_realised_ratio_comes_from_the_final_counters() {
+        let dir = tempfile::tempdir().unwrap();
+        let cfg = sim::SimConfig::default();
+        let mut core = learner::LearnerCore::new(
+            Method::Sarl,
+            TrainConfig::default(),
+            cfg.humans.count,
+            cfg.dt_s,
+            1,
+        )
+        .unwrap();
+        let mut env = sim::Env::new(cfg.clone(), "env1-invisible".parse().unwrap(), 0).unwrap();
+        let mut episode = |seed| {
+            let orca = Behaviour::Orca {
+                safety_space_m: 0.0,
+            };
+            rollout(&mut env, seed, orca).unwrap()
+        };
+        for seed in 0..2 {
+            core.add_episode(&episode(seed), true).unwrap();
+        }
+        core.imitation(1, |_, _| {}).unwrap();
+        core.start_rl().unwrap();
+        let start = core.counters().updates;
+        for seed in 10..12 {
+            core.add_episode(&episode(seed), false).unwrap();
+        }
+        core.train_round(3).unwrap();
+        core.train_round(4).unwrap();
+        assert_eq!(core.counters().updates - start, 7);
+        let run = learner::checkpoint::RunInfo {
+            run_id: "r".into(),
+            setting: "env1-invisible".into(),
+            run_seed: 1,
+            accepted_below: Default::default(),
+        };
+        std::fs::create_dir_all(dir.path().join("checkpoints")).unwrap();
+        let ckpt = dir.path().join("checkpoints").join("latest.ckpt");
+        learner::checkpoint::save(&ckpt, &core, &cfg, &run).unwrap();
+        // The newest message to arrive, from before the last round.
+        let mut m = proto::Metrics::default();
+        for (k, v) in [
+            ("updates_per_episode", 1.5),
+            ("rl_start_episodes", 0.0),
+            ("rl_start_updates", start as f64),
+        ] {
+            m.values.insert(k.into(), v);
+        }
+        let mut last = std::collections::BTreeMap::from([("learner-0".to_string(), m)]);
+        use_final_ratio(dir.path(), &mut last);
+        assert_eq!(last["learner-0"].values["updates_per_episode"], 3.5);
+    }
 }
