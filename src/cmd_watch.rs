@@ -1,5 +1,6 @@
 //! `fsrl watch`: live metrics of a run from another terminal (any tool can do the same: the
-//! messages are MessagePack with field names under `fsrl/<run>/metrics/**`).
+//! messages are MessagePack with field names under `fsrl/<run>/metrics/**`); with
+//! `--tensorboard DIR`, TensorBoard files of them instead (`tboard::LiveBoard`).
 
 use std::time::{Duration, Instant};
 
@@ -24,6 +25,10 @@ pub struct WatchArgs {
     /// Stop after this many seconds (0: never)
     #[arg(long, default_value_t = 0.0)]
     pub timeout_s: f64,
+    /// Write TensorBoard event files of the metrics into this directory instead of printing
+    /// them (the tags of a run directory's tb/; `tensorboard --logdir DIR`)
+    #[arg(long, value_name = "DIR")]
+    pub tensorboard: Option<std::path::PathBuf>,
 }
 
 pub fn run(args: WatchArgs) -> anyhow::Result<()> {
@@ -42,6 +47,15 @@ pub fn run(args: WatchArgs) -> anyhow::Result<()> {
     };
     let t = Transport::open(cfg)?;
     let sub = t.subscriber(&keys::all_metrics(t.run()))?;
+    let mut board = match &args.tensorboard {
+        Some(dir) => {
+            let b = tboard::LiveBoard::open(dir)
+                .map_err(|e| anyhow::anyhow!("--tensorboard {}: {e}", dir.display()))?;
+            eprintln!("writing TensorBoard files to {}", b.path().display());
+            Some(b)
+        }
+        None => None,
+    };
     let start = Instant::now();
     let mut seen = 0u64;
     let mut quiet_warned = false;
@@ -50,6 +64,16 @@ pub fn run(args: WatchArgs) -> anyhow::Result<()> {
             return Ok(());
         }
         match sub.recv_timeout(Duration::from_millis(500))? {
+            Some(m) if board.is_some() => {
+                if let Some(b) = &mut board {
+                    b.message(m.header.sender, &m.body)
+                        .map_err(|e| anyhow::anyhow!("writing TensorBoard files: {e}"))?;
+                }
+                seen += 1;
+                if args.count > 0 && seen >= args.count {
+                    return Ok(());
+                }
+            }
             Some(m) => {
                 let vals: Vec<String> = m
                     .body

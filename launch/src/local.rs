@@ -311,6 +311,8 @@ pub fn run(launch: Launch, stop: &AtomicBool) -> anyhow::Result<()> {
     // is copied into metrics.jsonl at the end, once the learner has stopped writing it.
     let validation_path = out.join("validation.jsonl");
     let validation_start = std::fs::metadata(&validation_path).map_or(0, |m| m.len());
+    // TensorBoard files in out/tb/: the logs as they grow, the learner's live-only values.
+    let mut board = tboard::Keeper::open(&out, tboard::Mode::Distributed);
     let total = resolved.file.train.rl.episodes;
     let bar = ProgressBar::with_draw_target(Some(total), ProgressDrawTarget::stderr_with_hz(4));
     bar.set_style(
@@ -333,11 +335,13 @@ pub fn run(launch: Launch, stop: &AtomicBool) -> anyhow::Result<()> {
         if let Some(status) = learner.try_wait()? {
             break status;
         }
+        board.tick();
         if let Some(msg) = metrics.recv_timeout(Duration::from_millis(200))? {
             let sender = msg.header.sender.to_string();
             let line = serde_json::json!({ "sender": sender, "wall_s": msg.body.wall_time_s, "env_steps": msg.body.env_steps, "episodes": msg.body.episodes, "values": msg.body.values});
             let _ = writeln!(log, "{line}");
             last_values.insert(sender, msg.body.clone());
+            board.live(msg.header.sender, &msg.body);
             if msg.header.sender.role == Role::Evaluator {
                 // A point of the learning curve; it reaches metrics.jsonl from the evaluator's
                 // validation.jsonl when the run ends (this live copy is best effort).
@@ -439,6 +443,7 @@ pub fn run(launch: Launch, stop: &AtomicBool) -> anyhow::Result<()> {
     if let Err(e) = copied {
         eprintln!("warning: the learning curve did not reach metrics.jsonl: {e:#}");
     }
+    board.finish();
     if !learner_exit.success() {
         bail!(
             "processes failed: {} (see {})",
