@@ -928,3 +928,99 @@ fn log_count(topic: &str, count: u64, error: &str) {
         tracing::warn!("undecodable {topic} message (#{count}, kept the last good one): {error}");
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proto::serve::{ActReply, ActRequest, GoalObs, HumanObs, RobotObs as RobotIn};
+
+    fn policy() -> ServedPolicy {
+        ServedPolicy::load(
+            &std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+                .join("../models/fsrl-env1-invisible-s0.fsrlm"),
+            None,
+        )
+        .unwrap()
+    }
+
+    fn request(humans: usize) -> ActRequest {
+        ActRequest {
+            robot: RobotIn {
+                x_m: 0.0,
+                y_m: -4.0,
+                vx_mps: 0.0,
+                vy_mps: 0.0,
+                heading_rad: 1.5,
+            },
+            goal: GoalObs { x_m: 0.0, y_m: 4.0 },
+            humans: (0..humans)
+                .map(|i| HumanObs {
+                    x_m: 1.0 + i as f64,
+                    y_m: 0.0,
+                    vx_mps: -0.5,
+                    vy_mps: 0.0,
+                    radius_m: None,
+                    goal_x_m: None,
+                    goal_y_m: None,
+                    v_pref_mps: None,
+                    standing: None,
+                })
+                .collect(),
+            steps: 0,
+        }
+    }
+
+    fn ask(pol: &mut ServedPolicy, r: &ActRequest) -> ActReply {
+        answer(pol, &Limits::default(), 8, &r.encode())
+    }
+
+    #[test]
+    fn the_queryable_checks_its_fields() {
+        let mut pol = policy();
+        assert!(ask(&mut pol, &request(3)).ok);
+        let many = ask(&mut pol, &request(9));
+        assert!(
+            !many.ok && many.reason.contains("9 humans, at most 8"),
+            "{many:?}"
+        );
+        let mut far = request(3);
+        far.robot.x_m = 1e9;
+        let r = ask(&mut pol, &far);
+        assert!(!r.ok && r.reason.contains("farther than"), "{r:?}");
+        let mut fast = request(3);
+        fast.humans[1].vx_mps = 1e4;
+        assert!(!ask(&mut pol, &fast).ok);
+        // A step count past the time limit plans as the limit.
+        let mut late = request(3);
+        late.steps = pol.step_limit();
+        let at_limit = ask(&mut pol, &late);
+        late.steps = u32::MAX;
+        let beyond = ask(&mut pol, &late);
+        assert!(beyond.ok);
+        assert_eq!(
+            (beyond.action, beyond.value),
+            (at_limit.action, at_limit.value)
+        );
+        assert!(!answer(&mut pol, &Limits::default(), 8, b"\xc1").ok);
+    }
+
+    #[test]
+    fn options_are_checked_all_at_once_in_one_line() {
+        let mut o = ServeOptions::new("model.fsrlm");
+        assert!(o.check().is_ok());
+        o.stale_periods = f64::INFINITY;
+        o.period_s = Some(-0.25);
+        o.limits.max_turn_rate_radps = Some(f64::NAN);
+        o.max_people = 0;
+        let e = o.check().unwrap_err().to_string();
+        for flag in [
+            "--stale-periods inf",
+            "--period-s -0.25",
+            "--max-turn-rate-radps NaN",
+            "--max-people 0",
+        ] {
+            assert!(e.contains(flag), "{flag}: {e}");
+        }
+        assert!(!e.contains('\n'));
+    }
+}
