@@ -658,9 +658,10 @@ fn hostile_but_well_formed_episodes_neither_stop_nor_poison_the_learner() {
 
 /// Issue 44: the learner drains liveliness during imitation too. A client declares more
 /// liveliness tokens than the learner's liveliness queue holds (1024), then sends episodes over
-/// the same link, all during the warm start: the learner still reads them (and refuses them as
-/// it should then). Before, nothing read liveliness until training started: the full queue held
-/// zenoh's reception of that link, and the episodes behind the tokens were not seen.
+/// the same link, all during the warm start: the learner tracks every token then (its
+/// `actors_alive`) and still reads the episodes behind them (and refuses them, as it should
+/// then). Before, nothing read liveliness until training started: the queue filled and its
+/// filler (a zenoh thread) waited; during imitation the learner saw none of the 3000.
 #[test]
 fn a_liveliness_flood_during_imitation_does_not_hold_the_learners_link() {
     let run = Run::new("aliveflood", "zenoh", "");

@@ -676,7 +676,7 @@ enum Membership {
 /// Tracks who is alive, with the log lines (at most [`MAX_ACTORS`] actor ids and as many
 /// evaluators; a refusal is counted and logged at powers of two). It needs no more of the
 /// learner than these two sets, so the warm start drains liveliness with it too (a flood of
-/// tokens then cannot fill the watcher's queue and hold the link it arrives on).
+/// tokens then cannot fill the watcher's bounded queue while nothing reads it).
 fn track_alive(
     actors: &mut AliveActors,
     evaluators: &mut HashSet<proto::Member>,
@@ -1001,8 +1001,8 @@ pub fn run_with_probe(
         let finished = imitation::run(&mut l.core, spec, stop, |p| {
             log.observe(&p, (wall0 + start.elapsed()).as_secs_f64());
             // Who is alive, as in training: the watcher's queue is bounded and, once full,
-            // holds back the link its tokens arrive on (and everything else on it). Actors that
-            // join are acknowledged when training starts.
+            // leaves the zenoh thread that fills it waiting. Actors that join are acknowledged
+            // when training starts.
             while let Ok(Some(ev)) = alive.recv_timeout(Duration::ZERO) {
                 track_alive(actors_alive, evaluators_alive, ev);
             }
