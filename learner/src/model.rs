@@ -205,7 +205,8 @@ impl Model {
             setting: spec.setting,
             run_id: run_id.to_string(),
             run_seed: spec.seed,
-            train: spec.train.clone(),
+            // The method's own training switches, as the learner trained with (`fsrl+`).
+            train: spec.method.train_config(&spec.train),
             sim: spec.method.sim_config(&spec.sim),
             counters: Counters {
                 demo_episodes: spec.train.imitation.episodes,
