@@ -53,6 +53,10 @@ pub struct TrainArgs {
     /// train.rl.replay_ratio, else 4,20; a resumed run keeps its own; --single-process: fixed]
     #[arg(long, value_name = "MIN,MAX|fixed", allow_hyphen_values = true, value_parser = ReplayRatioArg::parse)]
     pub replay_ratio: Option<ReplayRatioArg>,
+    /// Serve a live page of the run on http://127.0.0.1:PORT/ (`fsrl dashboard`; the
+    /// distributed mode, whose processes publish live metrics)
+    #[arg(long, value_name = "PORT", conflicts_with = "single_process")]
+    pub dashboard: Option<u16>,
 }
 
 fn resolve(args: &TrainArgs) -> anyhow::Result<Resolved> {
@@ -251,6 +255,7 @@ fn distributed(args: TrainArgs) -> anyhow::Result<()> {
         data_plane,
         evaluator: !args.no_evaluator,
         eval_episodes: args.eval_episodes,
+        dashboard: args.dashboard,
     };
     launch::local::run(launch, &stop)
 }

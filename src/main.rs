@@ -3,6 +3,7 @@
 
 mod cmd_check;
 mod cmd_compare;
+mod cmd_dashboard;
 mod cmd_eval;
 mod cmd_model;
 mod cmd_plot;
@@ -58,6 +59,8 @@ enum Command {
     Router(cmd_router::RouterArgs),
     /// Show a run's live metrics.
     Watch(cmd_watch::WatchArgs),
+    /// A live page of a run in the browser: validation curves, throughput, lag, processes.
+    Dashboard(cmd_dashboard::DashboardArgs),
     /// Parse and validate run configuration files.
     CheckConfig(cmd_check::CheckArgs),
     /// Drive a robot with a model over zenoh: ROS 2 topics (bridge or rmw_zenoh) and a queryable.
@@ -105,6 +108,7 @@ fn main() -> ExitCode {
         Command::Evaluator(args) => cmd_roles::evaluator(args),
         Command::Router(args) => cmd_router::run(args),
         Command::Watch(args) => cmd_watch::run(args),
+        Command::Dashboard(args) => cmd_dashboard::run(args),
         Command::CheckConfig(args) => cmd_check::run(args),
         Command::Serve(args) => cmd_serve::run(args),
     };

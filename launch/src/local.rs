@@ -178,6 +178,8 @@ pub struct Launch {
     pub evaluator: bool,
     /// Test episodes per setting of the evaluator's own reports.
     pub eval_episodes: Option<u32>,
+    /// Serve the run's live page on this port of 127.0.0.1 (`fsrl dashboard`, a child process).
+    pub dashboard: Option<u16>,
 }
 
 /// Runs the processes to the end of the schedule (or until `stop` is set), then the final
@@ -192,6 +194,7 @@ pub fn run(launch: Launch, stop: &AtomicBool) -> anyhow::Result<()> {
         data_plane,
         evaluator,
         eval_episodes,
+        dashboard,
     } = launch;
     if actors == 0 {
         bail!("a distributed run needs at least one actor");
@@ -290,6 +293,23 @@ pub fn run(launch: Launch, stop: &AtomicBool) -> anyhow::Result<()> {
         "live metrics from another terminal: fsrl watch --connect {learner_ep} --run {}",
         resolved.file.run.id
     );
+    // The live page: its own process (killed with the others at the end), reading the run's
+    // metrics as `fsrl dashboard` does anywhere.
+    let mut page = Children { list: Vec::new() };
+    if let Some(port) = dashboard {
+        let d = vec![
+            "dashboard".to_string(),
+            "--connect".into(),
+            learner_ep.clone(),
+            "--run".into(),
+            resolved.file.run.id.clone(),
+            "--port".into(),
+            port.to_string(),
+        ];
+        page.list
+            .push(("dashboard".into(), spawn(&exe, "dashboard", &d, &logs)?));
+        eprintln!("live page: http://127.0.0.1:{port}/");
+    }
 
     // Watch the run's metrics like any other tool would.
     let mut tcfg = resolved

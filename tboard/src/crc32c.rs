@@ -52,12 +52,9 @@ mod tests {
 
     #[test]
     fn the_mask_is_tensorflows() {
-        // TensorFlow: ((crc >> 15) | (crc << 17)) + 0xa282ead8.
-        let crc = crc32c(b"123456789");
-        assert_eq!(
-            masked(b"123456789"),
-            ((crc >> 15) | (crc << 17)).wrapping_add(0xa282_ead8)
-        );
+        // TensorFlow's ((crc >> 15) | (crc << 17)) + 0xa282ead8 of 0xE3069283, worked out by
+        // hand (Python: ((c >> 15 | c << 17) & 0xffffffff) + 0xa282ead8 & 0xffffffff).
+        assert_eq!(masked(b"123456789"), 0xC78A_B0E5);
         assert_ne!(masked(b"a"), crc32c(b"a"));
     }
 }

@@ -1,0 +1,415 @@
+//! `fsrl train --dashboard PORT`: the live page opened in headless Chromium (Debian's
+//! `chromium`, or FSRL_CHROMIUM; tools/test.sh installs it), driven over the DevTools protocol
+//! on a pipe (`--remote-debugging-pipe`: JSON messages ending in a NUL byte on fds 3 and 4).
+//! From the page's DOM: the validation curve gains points while the run goes on, and the count
+//! of actors alive drops when an actor process is killed. With FSRL_DASHBOARD_SCREENSHOT=PATH
+//! the test also writes its screenshot there, after FSRL_DASHBOARD_SCREENSHOT_EPISODES RL
+//! episodes (default: at once), validating 20 episodes every 25 (docs/pictures/dashboard.png:
+//! `FSRL_DASHBOARD_SCREENSHOT=docs/pictures/dashboard.png FSRL_DASHBOARD_SCREENSHOT_EPISODES=600
+//! cargo test --release --test dashboard`).
+
+use std::fs::File;
+use std::io::{BufRead, BufReader, Read, Write};
+use std::net::TcpStream;
+use std::os::fd::FromRawFd;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+use serde_json::{json, Value};
+
+/// The descendants of `pid` (from /proc), children first.
+fn descendants(pid: u32) -> Vec<u32> {
+    let mut out = Vec::new();
+    let mut frontier = vec![pid];
+    while let Some(p) = frontier.pop() {
+        for entry in std::fs::read_dir("/proc").into_iter().flatten().flatten() {
+            let Ok(child) = entry.file_name().to_string_lossy().parse::<u32>() else {
+                continue;
+            };
+            let stat = std::fs::read_to_string(entry.path().join("stat")).unwrap_or_default();
+            // pid (comm) state ppid ...: the comm may hold spaces, so from the last ')'.
+            let ppid = stat
+                .rsplit_once(')')
+                .and_then(|(_, rest)| rest.split_whitespace().nth(1))
+                .and_then(|p| p.parse::<u32>().ok());
+            if ppid == Some(p) {
+                out.push(child);
+                frontier.push(child);
+            }
+        }
+    }
+    out
+}
+
+fn cmdline(pid: u32) -> Vec<String> {
+    std::fs::read(format!("/proc/{pid}/cmdline"))
+        .unwrap_or_default()
+        .split(|&b| b == 0)
+        .map(|s| String::from_utf8_lossy(s).into_owned())
+        .collect()
+}
+
+fn signal(pid: u32, sig: i32) {
+    // SAFETY: kill(2) on a process this test started (or one of its children).
+    unsafe {
+        libc::kill(pid as libc::pid_t, sig);
+    }
+}
+
+/// A process tree stopped on every way out: SIGINT (the launcher stops its children), then
+/// SIGKILL for whatever is left.
+struct Tree(Child);
+
+impl Drop for Tree {
+    fn drop(&mut self) {
+        let all = descendants(self.0.id());
+        if let Ok(None) = self.0.try_wait() {
+            signal(self.0.id(), libc::SIGINT);
+            let deadline = Instant::now() + Duration::from_secs(30);
+            while Instant::now() < deadline && matches!(self.0.try_wait(), Ok(None)) {
+                std::thread::sleep(Duration::from_millis(100));
+            }
+            let _ = self.0.kill();
+            let _ = self.0.wait();
+        }
+        for p in all {
+            signal(p, libc::SIGKILL);
+        }
+    }
+}
+
+/// Headless Chromium driven over the DevTools protocol on a pipe.
+struct Browser {
+    child: Child,
+    to: File,
+    from: BufReader<File>,
+    id: u64,
+    session: Option<String>,
+}
+
+impl Drop for Browser {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+        for p in descendants(self.child.id()) {
+            signal(p, libc::SIGKILL);
+        }
+    }
+}
+
+fn pipe() -> (i32, i32) {
+    let mut fds = [0i32; 2];
+    // SAFETY: pipe2 fills the two descriptors; close-on-exec keeps them out of other children.
+    assert_eq!(unsafe { libc::pipe2(fds.as_mut_ptr(), libc::O_CLOEXEC) }, 0);
+    (fds[0], fds[1])
+}
+
+impl Browser {
+    fn launch(url: &str, profile: &Path) -> Browser {
+        let exe = std::env::var("FSRL_CHROMIUM").unwrap_or_else(|_| "chromium".into());
+        let (chrome_reads, we_write) = pipe();
+        let (we_read, chrome_writes) = pipe();
+        let mut cmd = Command::new(&exe);
+        cmd.args([
+            "--headless",
+            "--no-sandbox",
+            "--disable-gpu",
+            "--no-first-run",
+            "--disable-extensions",
+            "--hide-scrollbars",
+            "--remote-debugging-pipe",
+            "--window-size=1400,1000",
+        ])
+        .arg(format!("--user-data-dir={}", profile.display()))
+        .arg(url)
+        .stdin(Stdio::null())
+        .stdout(Stdio::null())
+        .stderr(Stdio::null());
+        // SAFETY: between fork and exec only async-signal-safe calls: the two pipe ends are
+        // copied above 10 (so neither is overwritten) and then onto fds 3 and 4, which dup2
+        // leaves open across exec.
+        unsafe {
+            std::os::unix::process::CommandExt::pre_exec(&mut cmd, move || {
+                let a = libc::fcntl(chrome_reads, libc::F_DUPFD, 10);
+                let b = libc::fcntl(chrome_writes, libc::F_DUPFD, 10);
+                if a < 0 || b < 0 || libc::dup2(a, 3) < 0 || libc::dup2(b, 4) < 0 {
+                    return Err(std::io::Error::last_os_error());
+                }
+                Ok(())
+            });
+        }
+        let child = cmd.spawn().unwrap_or_else(|e| {
+            panic!("cannot start {exe} (tools/test.sh installs Debian's chromium; or set FSRL_CHROMIUM): {e}")
+        });
+        // SAFETY: the descriptors are ours; the child's copies were made at fork.
+        unsafe {
+            libc::close(chrome_reads);
+            libc::close(chrome_writes);
+        }
+        // SAFETY: each descriptor is owned by exactly one File from here on.
+        let (to, from) = unsafe { (File::from_raw_fd(we_write), File::from_raw_fd(we_read)) };
+        Browser {
+            child,
+            to,
+            from: BufReader::new(from),
+            id: 0,
+            session: None,
+        }
+    }
+
+    /// Sends a command and returns its result (events in between are skipped).
+    fn call(&mut self, method: &str, params: Value) -> Value {
+        self.id += 1;
+        let mut msg = json!({"id": self.id, "method": method, "params": params});
+        if let Some(s) = &self.session {
+            msg["sessionId"] = json!(s);
+        }
+        let mut bytes = serde_json::to_vec(&msg).unwrap();
+        bytes.push(0);
+        self.to.write_all(&bytes).unwrap();
+        loop {
+            let mut buf = Vec::new();
+            let n = self.from.read_until(0, &mut buf).unwrap();
+            assert!(n > 0, "chromium closed its DevTools pipe");
+            buf.pop();
+            let v: Value = serde_json::from_slice(&buf).unwrap();
+            if v["id"] == json!(self.id) {
+                assert!(v.get("error").is_none(), "{method}: {v}");
+                return v["result"].clone();
+            }
+        }
+    }
+
+    /// Attaches to the page showing `url`.
+    fn attach(&mut self, url: &str) {
+        let deadline = Instant::now() + Duration::from_secs(60);
+        let target = loop {
+            let t = self.call("Target.getTargets", json!({}));
+            let page = t["targetInfos"]
+                .as_array()
+                .unwrap()
+                .iter()
+                .find(|i| i["type"] == "page" && i["url"].as_str().unwrap_or("").starts_with(url))
+                .map(|i| i["targetId"].clone());
+            if let Some(id) = page {
+                break id;
+            }
+            assert!(Instant::now() < deadline, "no page for {url}: {t}");
+            std::thread::sleep(Duration::from_millis(100));
+        };
+        let s = self.call(
+            "Target.attachToTarget",
+            json!({"targetId": target, "flatten": true}),
+        );
+        self.session = Some(s["sessionId"].as_str().unwrap().to_string());
+    }
+
+    /// The value of a JavaScript expression in the page.
+    fn eval(&mut self, expr: &str) -> Value {
+        let r = self.call(
+            "Runtime.evaluate",
+            json!({"expression": expr, "returnByValue": true}),
+        );
+        r["result"]["value"].clone()
+    }
+
+    fn screenshot(&mut self) -> Vec<u8> {
+        let height = self
+            .eval("document.documentElement.scrollHeight")
+            .as_u64()
+            .unwrap_or(1000);
+        self.call(
+            "Emulation.setDeviceMetricsOverride",
+            json!({"width": 1400, "height": height, "deviceScaleFactor": 1, "mobile": false}),
+        );
+        let r = self.call("Page.captureScreenshot", json!({"format": "png"}));
+        base64(r["data"].as_str().unwrap())
+    }
+}
+
+fn base64(s: &str) -> Vec<u8> {
+    let val = |c: u8| -> u32 {
+        match c {
+            b'A'..=b'Z' => (c - b'A') as u32,
+            b'a'..=b'z' => (c - b'a' + 26) as u32,
+            b'0'..=b'9' => (c - b'0' + 52) as u32,
+            b'+' => 62,
+            b'/' => 63,
+            _ => panic!("not base64: {c}"),
+        }
+    };
+    let clean: Vec<u8> = s.bytes().filter(|&c| c != b'=' && c != b'\n').collect();
+    let mut out = Vec::with_capacity(clean.len() * 3 / 4);
+    for chunk in clean.chunks(4) {
+        let mut n = 0u32;
+        for (i, &c) in chunk.iter().enumerate() {
+            n |= val(c) << (18 - 6 * i);
+        }
+        out.extend_from_slice(&n.to_be_bytes()[1..chunk.len()]);
+    }
+    out
+}
+
+fn free_port() -> u16 {
+    std::net::TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port()
+}
+
+/// Waits until the page answers on `port`.
+fn wait_for_page(port: u16, train: &mut Child, log: &Path) {
+    let deadline = Instant::now() + Duration::from_secs(120);
+    loop {
+        if let Ok(mut c) = TcpStream::connect(("127.0.0.1", port)) {
+            let _ = write!(c, "GET / HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n");
+            let mut s = String::new();
+            let _ = c.read_to_string(&mut s);
+            if s.starts_with("HTTP/1.1 200") {
+                return;
+            }
+        }
+        assert!(
+            train.try_wait().unwrap().is_none(),
+            "fsrl train stopped: {}",
+            std::fs::read_to_string(log).unwrap_or_default()
+        );
+        assert!(Instant::now() < deadline, "no page on port {port}");
+        std::thread::sleep(Duration::from_millis(100));
+    }
+}
+
+#[derive(Debug)]
+struct Seen {
+    validation_points: u64,
+    actors_alive: u64,
+}
+
+/// What the page's DOM shows (nothing while the page is still loading).
+fn seen(b: &mut Browser) -> Seen {
+    let v = b.eval(
+        "(() => { const c = document.getElementById('chart-validation'), a = document.getElementById('actors-alive'); return c && a ? [Number(c.dataset.points), Number(a.textContent)] : [0, 0]; })()",
+    );
+    Seen {
+        validation_points: v[0].as_u64().unwrap_or(0),
+        actors_alive: v[1].as_u64().unwrap_or(0),
+    }
+}
+
+#[test]
+fn the_live_page_follows_a_run_in_a_real_browser() {
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = dir.path().join("short.toml");
+    let picture = std::env::var("FSRL_DASHBOARD_SCREENSHOT").ok();
+    let (every, episodes) = if picture.is_some() { (25, 20) } else { (10, 5) };
+    std::fs::write(
+        &cfg,
+        format!("[train]\nvalidation_every_episodes = {every}\nvalidation_episodes = {episodes}\n"),
+    )
+    .unwrap();
+    let port = free_port();
+    let log = dir.path().join("train.log");
+    let mut train = Tree(
+        Command::new(env!("CARGO_BIN_EXE_fsrl"))
+            .args(["train", "--actors", "2", "--method", "sarl"])
+            .args(["--setting", "env2-visible", "--il-episodes", "8"])
+            .args(["--il-epochs", "2", "--eval-episodes", "4"])
+            .args(["--rl-episodes", "100000", "--config"])
+            .arg(&cfg)
+            .arg("--dashboard")
+            .arg(port.to_string())
+            .arg("--out")
+            .arg(dir.path().join("run"))
+            .stdout(Stdio::null())
+            .stderr(File::create(&log).unwrap())
+            .spawn()
+            .unwrap(),
+    );
+    wait_for_page(port, &mut train.0, &log);
+    let url = format!("http://127.0.0.1:{port}/");
+    let mut b = Browser::launch(&url, &dir.path().join("chromium"));
+    b.attach(&url);
+
+    // Both actors alive and a first validation drawn; then more points while the run goes on.
+    let deadline = Instant::now() + Duration::from_secs(240);
+    let first = loop {
+        let s = seen(&mut b);
+        if s.validation_points > 0 && s.actors_alive == 2 {
+            break s;
+        }
+        assert!(Instant::now() < deadline, "the page never showed {s:?}");
+        std::thread::sleep(Duration::from_millis(250));
+    };
+    let mut later = seen(&mut b);
+    while later.validation_points <= first.validation_points {
+        assert!(
+            Instant::now() < deadline,
+            "the curve gained no points: {first:?} then {later:?}"
+        );
+        std::thread::sleep(Duration::from_millis(250));
+        later = seen(&mut b);
+    }
+
+    // Kill actor 1: the page counts one actor alive.
+    let actor = descendants(train.0.id())
+        .into_iter()
+        .find(|&p| {
+            let c = cmdline(p);
+            c.get(1).is_some_and(|a| a == "actor")
+                && c.windows(2).any(|w| w[0] == "--id" && w[1] == "1")
+        })
+        .expect("the process of actor 1");
+    signal(actor, libc::SIGKILL);
+    let killed = Instant::now();
+    loop {
+        let s = seen(&mut b);
+        if s.actors_alive == 1 {
+            eprintln!(
+                "the page showed 1 actor alive {:.1} s after the kill",
+                killed.elapsed().as_secs_f64()
+            );
+            break;
+        }
+        assert!(
+            killed.elapsed() < Duration::from_secs(60),
+            "the page still shows {s:?} a minute after actor 1 was killed"
+        );
+        std::thread::sleep(Duration::from_millis(250));
+    }
+    let table = b.eval(
+        "[...document.querySelectorAll('#processes tr')].map(r => r.dataset.sender + '=' + r.dataset.alive).join(' ')",
+    );
+    let table = table.as_str().unwrap();
+    assert!(
+        table.contains("actor-1=false") && table.contains("actor-0=true"),
+        "{table}"
+    );
+
+    if let Some(e) = std::env::var("FSRL_DASHBOARD_SCREENSHOT_EPISODES")
+        .ok()
+        .and_then(|e| e.parse::<u64>().ok())
+    {
+        let deadline = Instant::now() + Duration::from_secs(3600);
+        loop {
+            let text = b.eval("document.getElementById('episodes').textContent");
+            let done: u64 = text
+                .as_str()
+                .and_then(|t| t.split(' ').next())
+                .and_then(|t| t.parse().ok())
+                .unwrap_or(0);
+            if done >= e || Instant::now() > deadline {
+                break;
+            }
+            std::thread::sleep(Duration::from_secs(1));
+        }
+    }
+    let png = b.screenshot();
+    assert!(png.starts_with(b"\x89PNG\r\n\x1a\n"), "not a PNG");
+    let shot = dir.path().join("dashboard.png");
+    std::fs::write(&shot, &png).unwrap();
+    if let Some(path) = picture {
+        std::fs::copy(&shot, PathBuf::from(path)).unwrap();
+    }
+}
