@@ -121,14 +121,13 @@ pub struct Group {
     pub members: Vec<SubjectReport>,
 }
 
-const ORDER: [&str; 7] = [
+const ORDER: [&str; 6] = [
     "orca",
     "lstm-rl",
     "sarl",
     "sarl+foresight",
     "sarl+efficiency",
     "fsrl",
-    "fsrl+",
 ];
 
 /// Groups policies by method, in the paper's order (unknown methods last).

@@ -162,8 +162,6 @@ impl LearnerCore {
     ) -> Result<Self, LearnerError> {
         let net_cfg = method.net().ok_or(LearnerError::NotTrainable(method))?;
         let net = ValueNet::new(net_cfg, seed)?;
-        // The method's own training switches (`fsrl+`); the paper's methods as configured.
-        let train = method.train_config(&train);
         let trainer = Trainer::new(
             net,
             AdamConfig::with_lr(train.imitation.learning_rate as f32),

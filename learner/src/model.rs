@@ -205,8 +205,7 @@ impl Model {
             setting: spec.setting,
             run_id: run_id.to_string(),
             run_seed: spec.seed,
-            // The method's own training switches, as the learner trained with (`fsrl+`).
-            train: spec.method.train_config(&spec.train),
+            train: spec.train.clone(),
             sim: spec.method.sim_config(&spec.sim),
             counters: Counters {
                 demo_episodes: spec.train.imitation.episodes,

@@ -33,22 +33,16 @@ pub enum Method {
     /// SARL network, R_c + efficiency (R_t).
     #[serde(rename = "sarl+efficiency")]
     SarlEfficiency,
-    /// Beyond the paper: FSRL's network and reward, trained with value targets on the robot's
-    /// own choices and n-step returns ([`Method::train_config`]; docs/REPRODUCTION.md,
-    /// Experiment 19).
-    #[serde(rename = "fsrl+")]
-    FsrlPlus,
 }
 
 impl Method {
-    pub const ALL: [Method; 7] = [
+    pub const ALL: [Method; 6] = [
         Method::Orca,
         Method::LstmRl,
         Method::Sarl,
         Method::Fsrl,
         Method::SarlForesight,
         Method::SarlEfficiency,
-        Method::FsrlPlus,
     ];
 
     pub fn name(self) -> &'static str {
@@ -59,13 +53,7 @@ impl Method {
             Method::Fsrl => "fsrl",
             Method::SarlForesight => "sarl+foresight",
             Method::SarlEfficiency => "sarl+efficiency",
-            Method::FsrlPlus => "fsrl+",
         }
-    }
-
-    /// Whether the method goes beyond the paper (its rows are labelled so in reports).
-    pub fn beyond_paper(self) -> bool {
-        self == Method::FsrlPlus
     }
 
     /// The value network, `None` for ORCA.
@@ -81,7 +69,7 @@ impl Method {
     pub fn reward_switches(self) -> (bool, bool) {
         match self {
             Method::Orca | Method::LstmRl | Method::Sarl => (false, false),
-            Method::Fsrl | Method::FsrlPlus => (true, true),
+            Method::Fsrl => (true, true),
             Method::SarlForesight => (true, false),
             Method::SarlEfficiency => (false, true),
         }
@@ -93,18 +81,6 @@ impl Method {
         let (foresight, efficiency) = self.reward_switches();
         cfg.reward.foresight = foresight;
         cfg.reward.efficiency = efficiency;
-        cfg
-    }
-
-    /// The training config this method trains with: `base` with the method's own switches
-    /// (`fsrl+`: `train.rl.greedy_targets` and `train.rl.n_step = 4`; every other method:
-    /// `base` unchanged, so the paper's methods train exactly as configured).
-    pub fn train_config(self, base: &TrainConfig) -> TrainConfig {
-        let mut cfg = base.clone();
-        if self == Method::FsrlPlus {
-            cfg.rl.greedy_targets = true;
-            cfg.rl.n_step = FSRL_PLUS_N_STEP;
-        }
         cfg
     }
 
@@ -125,7 +101,7 @@ impl fmt::Display for Method {
 
 /// An unknown method name.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
-#[error("unknown method `{0}`; expected one of orca, lstm-rl, sarl, fsrl, sarl+foresight, sarl+efficiency, fsrl+")]
+#[error("unknown method `{0}`; expected one of orca, lstm-rl, sarl, fsrl, sarl+foresight, sarl+efficiency")]
 pub struct UnknownMethod(pub String);
 
 impl FromStr for Method {
@@ -230,9 +206,6 @@ pub struct RlConfig {
     #[serde(skip_serializing_if = "std::ops::Not::not")]
     pub greedy_targets: bool,
 }
-
-/// `fsrl+`'s n-step return (Experiment 19).
-pub const FSRL_PLUS_N_STEP: u32 = 4;
 
 /// The longest n-step return `train.rl.n_step` may ask for (an episode is at most a few hundred
 /// steps; beyond this a target is a Monte-Carlo return in all but name).
@@ -505,18 +478,6 @@ mod tests {
         assert_eq!(Method::SarlForesight.reward_switches(), (true, false));
         assert_eq!(Method::SarlEfficiency.reward_switches(), (false, true));
         assert!("ppo".parse::<Method>().is_err());
-        // fsrl+ is FSRL's network and reward with its own training switches; the paper's
-        // methods train exactly as configured.
-        assert_eq!(Method::FsrlPlus.net(), Method::Fsrl.net());
-        assert_eq!(Method::FsrlPlus.reward_switches(), (true, true));
-        let plain = TrainConfig::default();
-        let plus = Method::FsrlPlus.train_config(&plain);
-        assert!(plus.rl.greedy_targets && plus.rl.n_step == FSRL_PLUS_N_STEP);
-        for m in Method::ALL.into_iter().filter(|m| *m != Method::FsrlPlus) {
-            assert_eq!(m.train_config(&plain), plain, "{m}");
-            assert!(!m.beyond_paper());
-        }
-        assert!(Method::FsrlPlus.beyond_paper());
     }
 
     #[test]
@@ -563,6 +524,29 @@ mod tests {
         c.rl.replay_ratio = Some(ReplayRatio { min: 1.0, max: 2.0 });
         c.rl.batches_per_episode = 0;
         assert!(c.problems()[0].contains("batches_per_episode"));
+    }
+
+    /// The value-target switches (Experiment 19): read from a file, checked, and not written
+    /// when off, so the paper's configs, checkpoints and model files keep their bytes.
+    #[test]
+    fn the_target_switches_are_read_checked_and_absent_when_off() {
+        let parsed: TrainConfig =
+            toml::from_str("[rl]\nn_step = 4\ngreedy_targets = true\n").unwrap();
+        assert_eq!((parsed.rl.n_step, parsed.rl.greedy_targets), (4, true));
+        assert!(parsed.problems().is_empty());
+        let text = toml::to_string(&parsed).unwrap();
+        assert!(text.contains("n_step = 4") && text.contains("greedy_targets = true"));
+        let text = toml::to_string(&TrainConfig::default()).unwrap();
+        assert!(
+            !text.contains("n_step") && !text.contains("greedy_targets"),
+            "{text}"
+        );
+        for n in [0, MAX_N_STEP + 1] {
+            let mut c = TrainConfig::default();
+            c.rl.n_step = n;
+            let p = c.problems();
+            assert!(p.len() == 1 && p[0].contains("train.rl.n_step"), "{p:?}");
+        }
     }
 
     #[test]
