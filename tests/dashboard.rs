@@ -4,7 +4,8 @@
 //! From the page's DOM: the validation curve gains points while the run goes on, and the count
 //! of actors alive drops when an actor process is killed. With FSRL_DASHBOARD_SCREENSHOT=PATH
 //! the test also writes its screenshot there, after FSRL_DASHBOARD_SCREENSHOT_EPISODES RL
-//! episodes (default: at once), validating 20 episodes every 25 (docs/pictures/dashboard.png:
+//! episodes (default: at once), with 200 demonstrations × 20 epochs and validating 20 episodes
+//! every 25 (docs/pictures/dashboard.png:
 //! `FSRL_DASHBOARD_SCREENSHOT=docs/pictures/dashboard.png FSRL_DASHBOARD_SCREENSHOT_EPISODES=600
 //! cargo test --release --test dashboard`).
 
@@ -303,7 +304,11 @@ fn the_live_page_follows_a_run_in_a_real_browser() {
     let dir = tempfile::tempdir().unwrap();
     let cfg = dir.path().join("short.toml");
     let picture = std::env::var("FSRL_DASHBOARD_SCREENSHOT").ok();
-    let (every, episodes) = if picture.is_some() { (25, 20) } else { (10, 5) };
+    // The picture's run warms up on more demonstrations, so that its curve shows learning.
+    let (every, episodes, il, epochs, rl) = match &picture {
+        Some(_) => (25, 20, "200", "20", "1000"),
+        None => (10, 5, "8", "2", "100000"),
+    };
     std::fs::write(
         &cfg,
         format!("[train]\nvalidation_every_episodes = {every}\nvalidation_episodes = {episodes}\n"),
@@ -314,9 +319,9 @@ fn the_live_page_follows_a_run_in_a_real_browser() {
     let mut train = Tree(
         Command::new(env!("CARGO_BIN_EXE_fsrl"))
             .args(["train", "--actors", "2", "--method", "sarl"])
-            .args(["--setting", "env2-visible", "--il-episodes", "8"])
-            .args(["--il-epochs", "2", "--eval-episodes", "4"])
-            .args(["--rl-episodes", "100000", "--config"])
+            .args(["--setting", "env2-visible", "--il-episodes", il])
+            .args(["--il-epochs", epochs, "--eval-episodes", "4"])
+            .args(["--rl-episodes", rl, "--config"])
             .arg(&cfg)
             .arg("--dashboard")
             .arg(port.to_string())
@@ -333,7 +338,8 @@ fn the_live_page_follows_a_run_in_a_real_browser() {
     b.attach(&url);
 
     // Both actors alive and a first validation drawn; then more points while the run goes on.
-    let deadline = Instant::now() + Duration::from_secs(240);
+    let warm_up = Duration::from_secs(if picture.is_some() { 1800 } else { 240 });
+    let deadline = Instant::now() + warm_up;
     let first = loop {
         let s = seen(&mut b);
         if s.validation_points > 0 && s.actors_alive == 2 {

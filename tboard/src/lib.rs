@@ -5,9 +5,9 @@
 //! logs and live metrics under CleanRL/Sample Factory-style tags (`tags`), and the run's
 //! `tb/` directory kept in step with its logs, resumed runs included (`board`).
 //!
-//! Read by TensorBoard (`tensorboard --logdir runs`), by Python's
+//! Read by TensorBoard (`tensorboard --logdir runs`) and by Python's
 //! `tensorboard.backend.event_processing.event_accumulator.EventAccumulator`
-//! (`tests/tensorboard.rs`), and by W&B's TensorBoard import.
+//! (`tests/tensorboard.rs`).
 
 pub mod board;
 pub mod crc32c;
