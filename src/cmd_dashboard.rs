@@ -46,7 +46,25 @@ pub fn run(args: DashboardArgs) -> anyhow::Result<()> {
     let listener = TcpListener::bind((args.bind, args.port))
         .with_context(|| format!("cannot serve the page on {}:{}", args.bind, args.port))?;
     let addr = listener.local_addr()?;
-    let t = Transport::open(cfg)?;
+    // The run's processes or router may not be up yet: try again, as the roles do.
+    let mut wait = std::time::Duration::from_millis(500);
+    let t = loop {
+        match Transport::open(cfg.clone()) {
+            Ok(t) => break t,
+            Err(e @ transport::TransportError::Config(_)) => {
+                return Err(e).context("cannot open the transport")
+            }
+            Err(e) => {
+                eprintln!(
+                    "cannot open the transport (connect {:?}): {e}; retrying in {:.1} s",
+                    cfg.zenoh.connect,
+                    wait.as_secs_f64()
+                );
+                std::thread::sleep(wait);
+                wait = (wait * 2).min(std::time::Duration::from_secs(10));
+            }
+        }
+    };
     println!("dashboard of run `{}`: http://{addr}/", args.run);
     dashboard::run(&t, listener, &AtomicBool::new(false))?;
     Ok(())

@@ -8,6 +8,12 @@
 //! every 25 (docs/pictures/dashboard.png:
 //! `FSRL_DASHBOARD_SCREENSHOT=docs/pictures/dashboard.png FSRL_DASHBOARD_SCREENSHOT_EPISODES=600
 //! cargo test --release --test dashboard`).
+//!
+//! Through a secured cluster's router (`fsrl router` with `deploy/router.json5` and the test
+//! CA, on loopback): a page with the monitor's credentials (`deploy/cluster-monitor.toml`)
+//! streams the learner's metrics; one with an actor's credentials gets none of them.
+
+mod multihost_support;
 
 use std::fs::File;
 use std::io::{BufRead, BufReader, Read, Write};
@@ -418,4 +424,93 @@ fn the_live_page_follows_a_run_in_a_real_browser() {
     if let Some(path) = picture {
         std::fs::copy(&shot, PathBuf::from(path)).unwrap();
     }
+}
+
+/// What the page on `port` streams in `wait` (a new connection: the history, then live events).
+fn stream(port: u16, wait: Duration) -> String {
+    let Ok(mut c) = TcpStream::connect(("127.0.0.1", port)) else {
+        return String::new();
+    };
+    c.set_read_timeout(Some(Duration::from_millis(200)))
+        .unwrap();
+    let _ = write!(c, "GET /events HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n");
+    let mut out = Vec::new();
+    let end = Instant::now() + wait;
+    let mut buf = [0u8; 8192];
+    while Instant::now() < end {
+        match c.read(&mut buf) {
+            Ok(0) => break,
+            Ok(n) => out.extend_from_slice(&buf[..n]),
+            Err(_) => {}
+        }
+    }
+    String::from_utf8_lossy(&out).into_owned()
+}
+
+#[test]
+fn through_a_secured_router_the_page_shows_the_run_to_the_monitor_and_no_one_else() {
+    use multihost_support::{self as mh, adapt_actor_config, adapt_deploy_config, table};
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let run = format!("db{}", std::process::id());
+    let mut router = mh::LoopbackRouter::start(d, &run, Path::new(env!("CARGO_BIN_EXE_fsrl")));
+    let learner = adapt_deploy_config("cluster-learner.toml", d, "learner.toml", |t| {
+        router.configure(t);
+        let l = table(t, &["learner"]);
+        l.insert(
+            "run_dir".into(),
+            d.join("run").to_string_lossy().into_owned().into(),
+        );
+        l.insert("metrics_interval_ms".into(), 200.into());
+        let i = table(t, &["train", "imitation"]);
+        i.insert("episodes".into(), 30.into());
+        i.insert("epochs".into(), 30.into());
+    });
+    let monitor = adapt_deploy_config("cluster-monitor.toml", d, "monitor.toml", |t| {
+        router.configure(t)
+    });
+    let actor = adapt_actor_config(0, d, "actor-0.toml", |t| router.configure(t));
+    let s = |p: &Path| p.to_string_lossy().into_owned();
+    router.spawn(
+        "learner",
+        &["learner".into(), "--config".into(), s(&learner)],
+    );
+    let page = |router: &mut mh::LoopbackRouter, name: &str, config: &Path| {
+        let port = free_port();
+        let args = ["dashboard", "--config", &s(config), "--run", &run, "--port"];
+        let mut args: Vec<String> = args.iter().map(|a| a.to_string()).collect();
+        args.push(port.to_string());
+        router.spawn(name, &args);
+        port
+    };
+    let allowed = page(&mut router, "page-monitor", &monitor);
+    let refused = page(&mut router, "page-actor", &actor);
+    let logs = || mh::log_tails(d, 20);
+
+    // The monitor's page streams the learner's metrics (its warm start's, at first).
+    let deadline = Instant::now() + Duration::from_secs(120);
+    let learner_event = "\"s\":\"learner-0\"";
+    loop {
+        let seen = stream(allowed, Duration::from_millis(500));
+        if seen.contains(learner_event) && seen.contains("\"k\":\"m\"") {
+            break;
+        }
+        assert!(
+            Instant::now() < deadline,
+            "the monitor's page showed no learner metrics:\n{seen}\n{}",
+            logs()
+        );
+        std::thread::sleep(Duration::from_millis(250));
+    }
+    // The actor's page, up as long: the router lets no metrics through to it.
+    let seen = stream(refused, Duration::from_secs(3));
+    assert!(
+        seen.starts_with("HTTP/1.1 200"),
+        "the actor's page is not up: {seen:?}\n{}",
+        logs()
+    );
+    assert!(
+        !seen.contains("\"k\":\"m\""),
+        "metrics reached a page with an actor's credentials:\n{seen}"
+    );
 }
