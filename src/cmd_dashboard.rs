@@ -6,21 +6,12 @@ use std::net::TcpListener;
 use std::sync::atomic::AtomicBool;
 
 use anyhow::Context;
-use proto::{Role, RunId, SenderId};
-use transport::{Transport, TransportConfig, ZenohConfig};
+use transport::Transport;
 
 #[derive(Debug, clap::Args)]
 pub struct DashboardArgs {
-    /// zenoh endpoint of a process of the run (the learner) or a router (repeatable)
-    #[arg(long, required_unless_present = "config")]
-    pub connect: Vec<String>,
-    /// Take the zenoh session (mode, endpoints, TLS, credentials) from this run config's
-    /// [transport.zenoh], e.g. deploy/cluster-monitor.toml; --connect still overrides
-    #[arg(long)]
-    pub config: Option<std::path::PathBuf>,
-    /// Run id
-    #[arg(long, default_value = "local")]
-    pub run: String,
+    #[command(flatten)]
+    pub monitor: crate::config::MonitorArgs,
     /// Port of the page (0: any free port, printed)
     #[arg(long, default_value_t = 8080)]
     pub port: u16,
@@ -30,19 +21,7 @@ pub struct DashboardArgs {
 }
 
 pub fn run(args: DashboardArgs) -> anyhow::Result<()> {
-    let run =
-        RunId::new(args.run.clone()).map_err(|e| anyhow::anyhow!("--run `{}`: {e}", args.run))?;
-    let mut cfg = TransportConfig::new(run, SenderId::new(Role::Monitor, std::process::id()));
-    cfg.zenoh = match &args.config {
-        Some(path) => {
-            let mut z = crate::config::FileConfig::load(Some(path))?.transport.zenoh;
-            if !args.connect.is_empty() {
-                z.connect = args.connect.clone();
-            }
-            z
-        }
-        None => ZenohConfig::peer(vec!["tcp/127.0.0.1:0".into()], args.connect.clone()),
-    };
+    let cfg = args.monitor.transport_config()?;
     let listener = TcpListener::bind((args.bind, args.port))
         .with_context(|| format!("cannot serve the page on {}:{}", args.bind, args.port))?;
     let addr = listener.local_addr()?;
@@ -65,7 +44,7 @@ pub fn run(args: DashboardArgs) -> anyhow::Result<()> {
             }
         }
     };
-    println!("dashboard of run `{}`: http://{addr}/", args.run);
+    println!("dashboard of run `{}`: http://{addr}/", args.monitor.run);
     dashboard::run(&t, listener, &AtomicBool::new(false))?;
     Ok(())
 }

@@ -4,21 +4,13 @@
 
 use std::time::{Duration, Instant};
 
-use proto::{keys, Role, RunId, SenderId};
-use transport::{Transport, TransportConfig, ZenohConfig};
+use proto::keys;
+use transport::Transport;
 
 #[derive(Debug, clap::Args)]
 pub struct WatchArgs {
-    /// zenoh endpoint of a process of the run (the learner) or a router (repeatable)
-    #[arg(long, required_unless_present = "config")]
-    pub connect: Vec<String>,
-    /// Take the zenoh session (mode, endpoints, TLS, credentials) from this run config's
-    /// [transport.zenoh], e.g. deploy/cluster-monitor.toml; --connect still overrides
-    #[arg(long)]
-    pub config: Option<std::path::PathBuf>,
-    /// Run id
-    #[arg(long, default_value = "local")]
-    pub run: String,
+    #[command(flatten)]
+    pub monitor: crate::config::MonitorArgs,
     /// Stop after this many messages (0: until Ctrl-C)
     #[arg(long, default_value_t = 0)]
     pub count: u64,
@@ -32,19 +24,7 @@ pub struct WatchArgs {
 }
 
 pub fn run(args: WatchArgs) -> anyhow::Result<()> {
-    let run =
-        RunId::new(args.run.clone()).map_err(|e| anyhow::anyhow!("--run `{}`: {e}", args.run))?;
-    let mut cfg = TransportConfig::new(run, SenderId::new(Role::Monitor, std::process::id()));
-    cfg.zenoh = match &args.config {
-        Some(path) => {
-            let mut z = crate::config::FileConfig::load(Some(path))?.transport.zenoh;
-            if !args.connect.is_empty() {
-                z.connect = args.connect.clone();
-            }
-            z
-        }
-        None => ZenohConfig::peer(vec!["tcp/127.0.0.1:0".into()], args.connect.clone()),
-    };
+    let cfg = args.monitor.transport_config()?;
     let t = Transport::open(cfg)?;
     let sub = t.subscriber(&keys::all_metrics(t.run()))?;
     let mut board = match &args.tensorboard {
@@ -96,7 +76,7 @@ pub fn run(args: WatchArgs) -> anyhow::Result<()> {
             None if !quiet_warned && start.elapsed() > Duration::from_secs(5) && seen == 0 => {
                 eprintln!(
                     "no metrics yet from run `{}` via {:?}; still listening",
-                    args.run,
+                    args.monitor.run,
                     t.config().zenoh.connect
                 );
                 quiet_warned = true;

@@ -89,3 +89,44 @@ pub fn check_train(train: &policy::method::TrainConfig, whence: &str) -> anyhow:
     }
     anyhow::bail!("{whence}: {}", problems.join("; "))
 }
+
+/// How a monitor (`fsrl watch`, `fsrl dashboard`) reaches a run: the flags both take, and the
+/// transport config they make (role Monitor, this process's id).
+#[derive(Debug, clap::Args)]
+pub struct MonitorArgs {
+    /// zenoh endpoint of a process of the run (the learner) or a router (repeatable)
+    #[arg(long, required_unless_present = "config")]
+    pub connect: Vec<String>,
+    /// Take the zenoh session (mode, endpoints, TLS, credentials) from this run config's
+    /// [transport.zenoh], e.g. deploy/cluster-monitor.toml; --connect still overrides
+    #[arg(long)]
+    pub config: Option<std::path::PathBuf>,
+    /// Run id
+    #[arg(long, default_value = "local")]
+    pub run: String,
+}
+
+impl MonitorArgs {
+    /// The monitor's transport config: the file's `[transport.zenoh]` (with `--connect` over
+    /// its endpoints) or a peer connecting to `--connect`.
+    pub fn transport_config(&self) -> anyhow::Result<transport::TransportConfig> {
+        use proto::{Role, RunId, SenderId};
+        let run = RunId::new(self.run.clone())
+            .map_err(|e| anyhow::anyhow!("--run `{}`: {e}", self.run))?;
+        let mut cfg =
+            transport::TransportConfig::new(run, SenderId::new(Role::Monitor, std::process::id()));
+        cfg.zenoh = match &self.config {
+            Some(path) => {
+                let mut z = FileConfig::load(Some(path))?.transport.zenoh;
+                if !self.connect.is_empty() {
+                    z.connect = self.connect.clone();
+                }
+                z
+            }
+            None => {
+                transport::ZenohConfig::peer(vec!["tcp/127.0.0.1:0".into()], self.connect.clone())
+            }
+        };
+        Ok(cfg)
+    }
+}
