@@ -3,7 +3,8 @@
 # n-step returns), env1-invisible, seeds 0-2, single process, against the shipped models on the
 # 500 test seeds. Copies each run's test evaluation and validation lines here, compares with
 # `fsrl compare --vs` (Welch per metric, over seeds) and scores the runs' last weights too.
-#   docs/results/greedy-targets/run.sh /path/to/fsrl ARM      (ARM: a or b; RUNS=runs/h19<arm>)
+#   docs/results/greedy-targets/run.sh /path/to/fsrl ARM      (ARM: a, nstep4, ...; RUNS=runs/h19<arm>;
+#   SEEDS="0 1" for the seeds finished so far, default all three)
 set -euo pipefail
 cd "$(dirname "$0")/../../.."
 fsrl=${1:?usage: $0 /path/to/fsrl ARM}
@@ -11,7 +12,8 @@ arm=${2:?usage: $0 /path/to/fsrl ARM}
 runs=${RUNS:-runs/h19$arm}
 out=docs/results/greedy-targets/$arm
 mkdir -p "$out/evals" "$out/runs" "$out/last"
-for s in 0 1 2; do
+seeds=${SEEDS:-0 1 2}
+for s in $seeds; do
   name="fsrl-env1-invisible-s$s"
   cp "$runs/eval/$name/eval.json" "$out/evals/$name.json"
   cp "$runs/$name/config.toml" "$out/runs/$name.config.toml"
@@ -23,8 +25,10 @@ for s in 0 1 2; do
     cp "$runs/eval-last/$name/eval.json" "$out/last/$name.json"
   fi
 done
-"$fsrl" compare "$out"/evals/fsrl-env1-invisible-s{0,1,2}.json \
-  --vs docs/results/grid/fsrl-env1-invisible-s{0,1,2}.json --out "$out/compare" > /dev/null
-"$fsrl" compare "$out"/last/fsrl-env1-invisible-s{0,1,2}.json \
-  --vs docs/results/grid/fsrl-env1-invisible-s{0,1,2}.json --out "$out/compare-last" > /dev/null
+ours() { for s in $seeds; do echo "$out/$1/fsrl-env1-invisible-s$s.json"; done; }
+shipped() { for s in $seeds; do echo "docs/results/grid/fsrl-env1-invisible-s$s.json"; done; }
+# shellcheck disable=SC2046
+"$fsrl" compare $(ours evals) --vs $(shipped) --out "$out/compare" > /dev/null
+# shellcheck disable=SC2046
+"$fsrl" compare $(ours last) --vs $(shipped) --out "$out/compare-last" > /dev/null
 echo "$out/compare/compare.md $out/compare-last/compare.md"
