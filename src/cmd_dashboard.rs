@@ -1,6 +1,6 @@
-//! `fsrl dashboard`: a live page of a run in the browser (`dashboard::run`: metrics, status
-//! and liveliness over zenoh, served over HTTP with Server-Sent Events; the page's files are
-//! compiled in).
+//! `fsrl dashboard`: a live page of one run, or of every run it sees, in the browser
+//! (`dashboard::run`: metrics, status and liveliness over zenoh, served over HTTP with
+//! Server-Sent Events; the page's files are compiled in).
 
 use std::net::TcpListener;
 use std::sync::atomic::AtomicBool;
@@ -12,6 +12,10 @@ use transport::Transport;
 pub struct DashboardArgs {
     #[command(flatten)]
     pub monitor: crate::config::MonitorArgs,
+    /// Run id to show [default: every run whose metrics reach this process, each under its
+    /// id]
+    #[arg(long)]
+    pub run: Option<String>,
     /// Port of the page (0: any free port, printed)
     #[arg(long, default_value_t = 8080)]
     pub port: u16,
@@ -21,7 +25,12 @@ pub struct DashboardArgs {
 }
 
 pub fn run(args: DashboardArgs) -> anyhow::Result<()> {
-    let cfg = args.monitor.transport_config()?;
+    // Every run: the subscriptions are `fsrl/*/…`; the session's own run names nothing.
+    let (run, scope) = match &args.run {
+        Some(run) => (run.as_str(), dashboard::Scope::Run),
+        None => ("dashboard", dashboard::Scope::EveryRun),
+    };
+    let cfg = args.monitor.transport_config(run)?;
     let listener = TcpListener::bind((args.bind, args.port))
         .with_context(|| format!("cannot serve the page on {}:{}", args.bind, args.port))?;
     let addr = listener.local_addr()?;
@@ -44,7 +53,10 @@ pub fn run(args: DashboardArgs) -> anyhow::Result<()> {
             }
         }
     };
-    println!("dashboard of run `{}`: http://{addr}/", args.monitor.run);
-    dashboard::run(&t, listener, &AtomicBool::new(false))?;
+    match &args.run {
+        Some(run) => println!("dashboard of run `{run}`: http://{addr}/"),
+        None => println!("dashboard of every run it sees: http://{addr}/"),
+    }
+    dashboard::run(&t, scope, listener, &AtomicBool::new(false))?;
     Ok(())
 }

@@ -11,6 +11,9 @@ use transport::Transport;
 pub struct WatchArgs {
     #[command(flatten)]
     pub monitor: crate::config::MonitorArgs,
+    /// Run id
+    #[arg(long, default_value = "local")]
+    pub run: String,
     /// Stop after this many messages (0: until Ctrl-C)
     #[arg(long, default_value_t = 0)]
     pub count: u64,
@@ -24,7 +27,7 @@ pub struct WatchArgs {
 }
 
 pub fn run(args: WatchArgs) -> anyhow::Result<()> {
-    let cfg = args.monitor.transport_config()?;
+    let cfg = args.monitor.transport_config(&args.run)?;
     let t = Transport::open(cfg)?;
     let sub = t.subscriber(&keys::all_metrics(t.run()))?;
     let mut board = match &args.tensorboard {
@@ -76,7 +79,7 @@ pub fn run(args: WatchArgs) -> anyhow::Result<()> {
             None if !quiet_warned && start.elapsed() > Duration::from_secs(5) && seen == 0 => {
                 eprintln!(
                     "no metrics yet from run `{}` via {:?}; still listening",
-                    args.monitor.run,
+                    args.run,
                     t.config().zenoh.connect
                 );
                 quiet_warned = true;

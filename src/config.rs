@@ -101,18 +101,14 @@ pub struct MonitorArgs {
     /// [transport.zenoh], e.g. deploy/cluster-monitor.toml; --connect still overrides
     #[arg(long)]
     pub config: Option<std::path::PathBuf>,
-    /// Run id
-    #[arg(long, default_value = "local")]
-    pub run: String,
 }
 
 impl MonitorArgs {
-    /// The monitor's transport config: the file's `[transport.zenoh]` (with `--connect` over
-    /// its endpoints) or a peer connecting to `--connect`.
-    pub fn transport_config(&self) -> anyhow::Result<transport::TransportConfig> {
+    /// The monitor's transport config for run `run` (`--run`): the file's `[transport.zenoh]`
+    /// (with `--connect` over its endpoints) or a peer connecting to `--connect`.
+    pub fn transport_config(&self, run: &str) -> anyhow::Result<transport::TransportConfig> {
         use proto::{Role, RunId, SenderId};
-        let run = RunId::new(self.run.clone())
-            .map_err(|e| anyhow::anyhow!("--run `{}`: {e}", self.run))?;
+        let run = RunId::new(run).map_err(|e| anyhow::anyhow!("--run `{run}`: {e}"))?;
         let mut cfg =
             transport::TransportConfig::new(run, SenderId::new(Role::Monitor, std::process::id()));
         cfg.zenoh = match &self.config {

@@ -9,6 +9,10 @@
 //! `FSRL_DASHBOARD_SCREENSHOT=docs/pictures/dashboard.png FSRL_DASHBOARD_SCREENSHOT_EPISODES=600
 //! cargo test --release --test dashboard`).
 //!
+//! `fsrl dashboard` without `--run`: every run it sees, each under its id, and every process's
+//! state and last error from its status heartbeats (a real learner's, and this test's own
+//! zenoh sessions publishing a second run).
+//!
 //! Through a secured cluster's router (`fsrl router` with `deploy/router.json5` and the test
 //! CA, on loopback): a page with the monitor's credentials (`deploy/cluster-monitor.toml`)
 //! streams the learner's metrics; one with an actor's credentials gets none of them.
@@ -23,7 +27,9 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
+use proto::{keys, Metrics, Role, RunId, SenderId};
 use serde_json::{json, Value};
+use transport::{Transport, TransportConfig, ZenohConfig};
 
 /// The descendants of `pid` (from /proc), children first.
 fn descendants(pid: u32) -> Vec<u32> {
@@ -398,6 +404,24 @@ fn the_live_page_follows_a_run_in_a_real_browser() {
         table.contains("actor-1=false") && table.contains("actor-0=true"),
         "{table}"
     );
+    // The processes' states, from their heartbeats; the page shows this run only.
+    let states = b.eval(
+        "[...document.querySelectorAll('#processes tr')].map(r => r.dataset.run + '/' + r.dataset.sender + '=' + r.dataset.state).join(' ')",
+    );
+    let states = states.as_str().unwrap();
+    for sender in ["learner-0", "actor-0", "evaluator-0"] {
+        assert!(
+            ["running", "idle"]
+                .iter()
+                .any(|s| states.contains(&format!("/{sender}={s}"))),
+            "{sender} has no state: {states}"
+        );
+    }
+    let run = states.split('/').next().unwrap_or("");
+    assert!(
+        !run.is_empty() && states.split(' ').all(|r| r.starts_with(&format!("{run}/"))),
+        "another run on the page: {states}"
+    );
 
     if let Some(e) = std::env::var("FSRL_DASHBOARD_SCREENSHOT_EPISODES")
         .ok()
@@ -512,5 +536,199 @@ fn through_a_secured_router_the_page_shows_the_run_to_the_monitor_and_no_one_els
     assert!(
         !seen.contains("\"k\":\"m\""),
         "metrics reached a page with an actor's credentials:\n{seen}"
+    );
+}
+
+/// A transport of this test: `sender` of `run`, listening on `port`, connected to `connect`.
+fn test_transport(run: &str, sender: SenderId, port: u16, connect: &[String]) -> Transport {
+    let mut cfg = TransportConfig::new(RunId::new(run).unwrap(), sender);
+    cfg.zenoh = ZenohConfig::peer(vec![format!("tcp/127.0.0.1:{port}")], connect.to_vec());
+    Transport::open(cfg).unwrap()
+}
+
+/// `fsrl dashboard` without `--run`: every run it sees on one page, each under its id. Run a
+/// is a real learner process (a short warm start, then idle: no actor ever joins); run b is
+/// this test, publishing a learner's and an evaluator's metrics and heartbeats through zenoh
+/// sessions of its own. The page lists both runs with their data and draws run b's validation
+/// curve once it is selected; its processes table shows the state of run a's learner from the
+/// learner's own heartbeats (`proto::Status`: idle, waiting for actors), and its last error, a
+/// message the learner rejected (garbage on its transitions key), as the learner reported it.
+#[test]
+fn a_page_of_every_run_shows_each_run_and_each_processs_state_and_last_error() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let (run_a, run_b) = (
+        format!("every-a{}", std::process::id()),
+        format!("every-b{}", std::process::id()),
+    );
+    let (port_a, port_b, port_e) = (free_port(), free_port(), free_port());
+    let endpoint = |p: u16| format!("tcp/127.0.0.1:{p}");
+    std::fs::write(
+        d.join("a.toml"),
+        format!(
+            "[run]\nid = \"{run_a}\"\nmethod = \"sarl\"\nsetting = \"env2-visible\"\n[train.imitation]\nepisodes = 4\nepochs = 1\n[learner]\nmetrics_interval_ms = 200\n"
+        ),
+    )
+    .unwrap();
+    let log = d.join("learner-a.log");
+    let _learner = Tree(
+        Command::new(env!("CARGO_BIN_EXE_fsrl"))
+            .arg("learner")
+            .arg("--config")
+            .arg(d.join("a.toml"))
+            .args(["--data-plane", "zenoh", "--listen", &endpoint(port_a)])
+            .arg("--run-dir")
+            .arg(d.join("run-a"))
+            .stdout(Stdio::null())
+            .stderr(File::create(&log).unwrap())
+            .spawn()
+            .unwrap(),
+    );
+    // Run b: its learner (connected to run a's learner too, to send it garbage) and evaluator.
+    let learner_b = test_transport(
+        &run_b,
+        SenderId::new(Role::Learner, 0),
+        port_b,
+        &[endpoint(port_a)],
+    );
+    let evaluator_b = test_transport(&run_b, SenderId::new(Role::Evaluator, 0), port_e, &[]);
+    // Run a's learner is up once its metrics arrive.
+    let every = learner_b.subscriber(&keys::every_run_metrics()).unwrap();
+    let deadline = Instant::now() + Duration::from_secs(120);
+    loop {
+        if let Some(m) = every.recv_timeout(Duration::from_millis(200)).unwrap() {
+            if m.header.run.as_str() == run_a {
+                break;
+            }
+        }
+        assert!(
+            Instant::now() < deadline,
+            "run a's learner published nothing: {}",
+            std::fs::read_to_string(&log).unwrap_or_default()
+        );
+    }
+    drop(every);
+
+    let port = free_port();
+    let page_log = d.join("dashboard.log");
+    let mut page = Tree(
+        Command::new(env!("CARGO_BIN_EXE_fsrl"))
+            .args(["dashboard", "--port", &port.to_string()])
+            .args(["--connect", &endpoint(port_a)])
+            .args(["--connect", &endpoint(port_b)])
+            .args(["--connect", &endpoint(port_e)])
+            .stdout(Stdio::null())
+            .stderr(File::create(&page_log).unwrap())
+            .spawn()
+            .unwrap(),
+    );
+    wait_for_page(port, &mut page.0, &page_log);
+    let url = format!("http://127.0.0.1:{port}/");
+    let mut b = Browser::launch(&url, &d.join("chromium"));
+    b.attach(&url);
+
+    // Run b: a learner in RL and two validations, with heartbeats.
+    let lm = learner_b
+        .publisher(&keys::metrics(learner_b.run(), learner_b.sender()))
+        .unwrap();
+    let em = evaluator_b
+        .publisher(&keys::metrics(evaluator_b.run(), evaluator_b.sender()))
+        .unwrap();
+    let heartbeats = [
+        transport::Heartbeat::new(&learner_b).unwrap(),
+        transport::Heartbeat::new(&evaluator_b).unwrap(),
+    ];
+    let publish_run_b = |round: u64| {
+        let mut m = Metrics {
+            episodes: 10 * round,
+            wall_time_s: round as f64,
+            ..Metrics::default()
+        };
+        for (k, v) in [
+            ("imitation_done", 1.0),
+            ("episodes_target", 100.0),
+            ("policy_lag_mean", 1.5),
+            ("policy_lag_max", 3.0),
+            ("updates_per_episode", 20.0),
+        ] {
+            m.values.insert(k.into(), v);
+        }
+        let _ = lm.publish(round, &m);
+        let mut v = Metrics {
+            episodes: 10 * round,
+            ..Metrics::default()
+        };
+        for (k, x) in [
+            ("validation_episode", 10.0 * round as f64),
+            ("validation_success_rate", 0.5),
+            ("validation_collision_rate", 0.25),
+            ("validation_timeout_rate", 0.25),
+            ("validation_discomfort", 0.1),
+            ("validation_nav_time_s", 12.0),
+        ] {
+            v.values.insert(k.into(), x);
+        }
+        let _ = em.publish(round, &v);
+        for h in &heartbeats {
+            h.set_state(proto::ProcessState::Running);
+            h.beat();
+        }
+    };
+    // Garbage on run a's transitions key: its learner rejects it, and says so in its status.
+    let evil = learner_b
+        .publisher(&keys::transitions(&RunId::new(run_a.clone()).unwrap(), 7))
+        .unwrap();
+
+    let runs_js = "[...document.querySelectorAll('#runs tr')].map(r => r.dataset.run + ':' + r.dataset.episodes + ':' + r.dataset.validations).join(' ')";
+    let row_js = |run: &str, sender: &str| {
+        format!(
+            "(() => {{ const r = document.querySelector('#processes tr[data-run=\"{run}\"][data-sender=\"{sender}\"]'); return r ? r.dataset.state + '|' + r.querySelector('td.err').textContent : ''; }})()"
+        )
+    };
+    let deadline = Instant::now() + Duration::from_secs(120);
+    let mut round = 1;
+    let (runs, learner_a) = loop {
+        publish_run_b(round.min(2));
+        round += 1;
+        let _ = evil.publish_raw(b"not an episode".to_vec());
+        std::thread::sleep(Duration::from_millis(250));
+        let runs = b.eval(runs_js).as_str().unwrap_or("").to_string();
+        let learner_a = b
+            .eval(&row_js(&run_a, "learner-0"))
+            .as_str()
+            .unwrap_or("")
+            .to_string();
+        let both = runs.contains(&format!("{run_b}:20:2")) && runs.contains(&format!("{run_a}:"));
+        if both && learner_a.starts_with("idle|") && learner_a.contains("rejected a message") {
+            break (runs, learner_a);
+        }
+        assert!(
+            Instant::now() < deadline,
+            "the page shows runs {runs:?}, run a's learner {learner_a:?}\n{}",
+            std::fs::read_to_string(&log).unwrap_or_default()
+        );
+    };
+    eprintln!("runs: {runs}; run a's learner: {learner_a}");
+    assert!(
+        learner_a.contains(&format!("fsrl/{run_a}/transitions")),
+        "{learner_a}"
+    );
+    // Run b's processes, by their heartbeats; its curve once it is selected.
+    let learner_b_row = b.eval(&row_js(&run_b, "learner-0"));
+    assert!(
+        learner_b_row.as_str().unwrap_or("").starts_with("running|"),
+        "{learner_b_row}"
+    );
+    b.eval(&format!(
+        "document.querySelector('#runs tr[data-run=\"{run_b}\"] button').click()"
+    ));
+    let shown = b.eval(
+        "[document.getElementById('run').textContent, Number(document.getElementById('chart-validation').dataset.points)]",
+    );
+    assert_eq!(shown[0].as_str(), Some(run_b.as_str()), "{shown}");
+    assert_eq!(
+        shown[1].as_u64(),
+        Some(6),
+        "two points of three series: {shown}"
     );
 }

@@ -15,9 +15,9 @@ use policy::method::RunSpec;
 use policy::rollout::{episode_seed, rollout, Behaviour};
 use policy::wire::{net_from_weights, to_batch};
 use policy::ValueNet;
-use proto::{keys, Metrics, Role, RunPhase, TransitionBatch};
+use proto::{keys, Metrics, ProcessState, Role, RunPhase, TransitionBatch};
 use sim::Env;
-use transport::{AliveEvent, Transport, TransportError};
+use transport::{AliveEvent, Heartbeat, Transport, TransportError};
 
 /// Episode-seed stream of actor `id` (stream 0 is the demonstrator's, 1 the single-process
 /// mode's one in-process actor, [`LOCKSTEP_STREAM`]).
@@ -106,8 +106,10 @@ pub enum ActorExit {
 }
 
 /// Counters of an actor, also published as metrics.
-#[derive(Debug, Clone, Copy, Default)]
+#[derive(Debug, Clone, Default)]
 pub struct ActorStats {
+    /// The newest warning not yet handed to the status heartbeat (its last error).
+    pub last_error: Option<String>,
     pub episodes: u64,
     pub env_steps: u64,
     pub resent: u64,
@@ -142,6 +144,10 @@ fn send(
         Ok(_) => Ok(true),
         Err(e @ TransportError::PublishTimeout { .. }) => {
             stats.publish_timeouts += 1;
+            stats.last_error = Some(format!(
+                "episode {}: {e}; it stays in the outbox and is sent again",
+                batch.episode
+            ));
             if stats.publish_timeouts.is_power_of_two() {
                 tracing::warn!(
                     episode = batch.episode,
@@ -222,12 +228,30 @@ impl State {
     }
 }
 
-/// Runs actor `id` until the learner finishes the run or `stop` is set.
+/// Runs actor `id` until the learner finishes the run or `stop` is set. Its status heartbeats
+/// tell its state (starting until it has weights and a learner; running while it plays; idle
+/// while it holds off; stopping; failed with why) and its last warning.
 pub fn run(
     transport: &Transport,
     spec: &RunSpec,
     id: u32,
     stop: &AtomicBool,
+) -> Result<ActorExit, ActorError> {
+    let status = Heartbeat::new(transport)?;
+    let result = run_inner(transport, spec, id, stop, &status);
+    match &result {
+        Ok(_) => status.set_state(ProcessState::Stopping),
+        Err(e) => status.fail(e),
+    }
+    result
+}
+
+fn run_inner(
+    transport: &Transport,
+    spec: &RunSpec,
+    id: u32,
+    stop: &AtomicBool,
+    status: &Heartbeat,
 ) -> Result<ActorExit, ActorError> {
     let net_cfg = spec
         .method
@@ -280,6 +304,7 @@ pub fn run(
                     }
                     Err(e) => {
                         stats.bad_weights += 1;
+                        stats.last_error = Some(format!("ignoring weights version {version}: {e}"));
                         if stats.bad_weights.is_power_of_two() {
                             tracing::warn!(
                                 actor = id,
@@ -316,6 +341,18 @@ pub fn run(
             }
             _ => false,
         };
+        if let Some(e) = stats.last_error.take() {
+            status.error(e);
+        }
+        status.set_state(if ready {
+            ProcessState::Running
+        } else if st.net.is_none() {
+            ProcessState::Starting
+        } else {
+            ProcessState::Idle
+        });
+        status.progress(stats.env_steps, stats.episodes);
+        status.beat();
         if last_metrics.elapsed() >= Duration::from_secs(1) {
             publish_metrics(&metrics, &stats, start, st.outbox.len())?;
             last_metrics = Instant::now();
@@ -373,6 +410,10 @@ fn apply_ack(st: &mut State, stats: &mut ActorStats, id: u32, ack: &proto::Ack) 
     }
     if st.learner != Some(ack.learner) {
         stats.foreign_acks += 1;
+        stats.last_error = Some(format!(
+            "ignoring an acknowledgement from learner {:016x}, not the one alive",
+            ack.learner
+        ));
         if stats.foreign_acks.is_power_of_two() {
             tracing::warn!(
                 actor = id,
@@ -421,6 +462,9 @@ fn resync(st: &mut State, stats: &mut ActorStats, id: u32, expected: u64) {
     }
     let lost = oldest - expected;
     stats.lost += lost;
+    stats.last_error = Some(format!(
+        "episodes {expected}..{oldest} were acknowledged by an earlier learner and are lost"
+    ));
     tracing::warn!(
         actor = id,
         lost,

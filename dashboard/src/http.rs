@@ -150,7 +150,7 @@ mod tests {
     fn the_page_its_scripts_and_the_event_stream() {
         let l = TcpListener::bind("127.0.0.1:0").unwrap();
         let addr = l.local_addr().unwrap();
-        let hub = Hub::new("r1");
+        let hub = Hub::new(Some("r1"));
         spawn(l, hub.clone()).unwrap();
         let host = format!("127.0.0.1:{}", addr.port());
         let page = get(addr, "/", &host);

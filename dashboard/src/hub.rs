@@ -1,12 +1,12 @@
-//! What the page is told: every metrics, status and liveliness event of the run as one JSON
-//! object, kept (bounded) so that a page opened late draws the whole run, and handed to every
-//! open page as it arrives.
+//! What the page is told: every metrics, status and liveliness event as one JSON object naming
+//! its run (`r`), kept (bounded) so that a page opened late draws the whole of each run, and
+//! handed to every open page as it arrives.
 
 use std::collections::VecDeque;
 use std::sync::mpsc::{sync_channel, Receiver, SyncSender, TrySendError};
 use std::sync::{Arc, Mutex};
 
-use proto::{Metrics, Role, SenderId, Status};
+use proto::{Metrics, Role, RunId, SenderId, Status};
 
 /// Messages of each kind kept for a page opened later: the evaluator's (the learning curve,
 /// one per validation) all up to [`KEEP_VALIDATIONS`], the others the newest [`KEEP_OTHERS`]
@@ -18,26 +18,30 @@ pub const KEEP_OTHERS: usize = 15_000;
 pub const PAGE_BACKLOG: usize = 4096;
 
 /// One event as the page reads it.
-pub fn metrics_event(sender: SenderId, m: &Metrics) -> String {
+pub fn metrics_event(run: &RunId, sender: SenderId, m: &Metrics) -> String {
     serde_json::json!({
-        "k": "m", "s": sender.to_string(), "role": role(sender.role),
+        "k": "m", "r": run.as_str(), "s": sender.to_string(), "role": role(sender.role),
         "e": m.episodes, "t": m.wall_time_s, "v": m.values,
     })
     .to_string()
 }
 
-pub fn status_event(sender: SenderId, s: &Status) -> String {
+/// A heartbeat: the state (`starting`, `running`, `idle`, `stopping`, `failed`) and `detail`,
+/// the process's last error.
+pub fn status_event(run: &RunId, sender: SenderId, s: &Status) -> String {
     let state = serde_json::to_value(s.state).unwrap_or_default();
     serde_json::json!({
-        "k": "s", "s": sender.to_string(), "role": role(sender.role),
-        "state": state, "detail": s.detail, "uptime": s.uptime_s,
+        "k": "s", "r": run.as_str(), "s": sender.to_string(), "role": role(sender.role),
+        "state": state, "detail": s.detail, "uptime": s.uptime_s, "e": s.episodes,
     })
     .to_string()
 }
 
-pub fn alive_event(sender: SenderId, up: bool) -> String {
-    serde_json::json!({"k": "a", "s": sender.to_string(), "role": role(sender.role), "up": up})
-        .to_string()
+pub fn alive_event(run: &RunId, sender: SenderId, up: bool) -> String {
+    serde_json::json!({
+        "k": "a", "r": run.as_str(), "s": sender.to_string(), "role": role(sender.role), "up": up,
+    })
+    .to_string()
 }
 
 fn role(r: Role) -> &'static str {
@@ -51,25 +55,25 @@ fn role(r: Role) -> &'static str {
 
 #[derive(Default)]
 struct State {
-    /// The run's first event (its id), then the kept history.
+    /// The first event (the run shown, or `null` for every run), then the kept history.
     head: Vec<Arc<str>>,
     validations: VecDeque<Arc<str>>,
     others: VecDeque<Arc<str>>,
     pages: Vec<SyncSender<Arc<str>>>,
 }
 
-/// The events of one run, and the pages listening.
+/// The events of the runs shown, and the pages listening.
 #[derive(Clone, Default)]
 pub struct Hub {
     state: Arc<Mutex<State>>,
 }
 
 impl Hub {
-    /// A hub whose history starts with the run's id.
-    pub fn new(run: &str) -> Self {
+    /// A hub whose history starts with the run shown (`None`: every run it sees).
+    pub fn new(run: Option<&str>) -> Self {
         let hub = Hub::default();
         hub.lock().head.push(
-            serde_json::json!({"k": "run", "run": run})
+            serde_json::json!({"k": "run", "run": run, "every": run.is_none()})
                 .to_string()
                 .into(),
         );
@@ -129,13 +133,14 @@ mod tests {
 
     #[test]
     fn a_late_page_gets_the_history_then_what_follows() {
-        let hub = Hub::new("r");
+        let hub = Hub::new(Some("r"));
+        let r = RunId::new("r").unwrap();
         let learner = SenderId::new(Role::Learner, 0);
-        hub.publish(metrics_event(learner, &Metrics::default()), false);
+        hub.publish(metrics_event(&r, learner, &Metrics::default()), false);
         let (history, rx) = hub.subscribe();
         assert_eq!(history.len(), 2);
         assert!(history[0].contains("\"run\":\"r\""));
-        hub.publish(alive_event(SenderId::new(Role::Actor, 1), false), false);
+        hub.publish(alive_event(&r, SenderId::new(Role::Actor, 1), false), false);
         let next = rx.try_recv().unwrap();
         assert!(
             next.contains("\"s\":\"actor-1\"") && next.contains("\"up\":false"),
@@ -143,13 +148,13 @@ mod tests {
         );
         // A page gone is forgotten at the next event.
         drop(rx);
-        hub.publish(alive_event(learner, true), false);
+        hub.publish(alive_event(&r, learner, true), false);
         assert_eq!(hub.pages(), 0);
     }
 
     #[test]
     fn a_page_that_falls_behind_is_dropped_and_the_history_is_bounded() {
-        let hub = Hub::new("r");
+        let hub = Hub::new(None);
         let (_, _rx) = hub.subscribe();
         for _ in 0..PAGE_BACKLOG + 1 {
             hub.publish("{}".into(), false);
@@ -162,5 +167,35 @@ mod tests {
         let (history, _) = hub.subscribe();
         assert_eq!(history.len(), 1 + 1 + KEEP_OTHERS);
         assert_eq!(&*history[1], "{\"v\":1}");
+    }
+
+    #[test]
+    fn each_event_names_its_run_and_a_heartbeat_its_state_and_last_error() {
+        let hub = Hub::new(None);
+        let (history, _) = hub.subscribe();
+        assert!(history[0].contains("\"every\":true"), "{}", history[0]);
+        let b = RunId::new("run-b").unwrap();
+        let s = Status {
+            state: proto::ProcessState::Idle,
+            uptime_s: 3.5,
+            env_steps: 10,
+            episodes: 2,
+            detail: "rejected a message".into(),
+        };
+        let e: serde_json::Value =
+            serde_json::from_str(&status_event(&b, SenderId::new(Role::Learner, 0), &s)).unwrap();
+        assert_eq!(e["r"], "run-b");
+        assert_eq!(e["state"], "idle");
+        assert_eq!(e["detail"], "rejected a message");
+        let m: serde_json::Value = serde_json::from_str(&metrics_event(
+            &b,
+            SenderId::new(Role::Actor, 2),
+            &Metrics::default(),
+        ))
+        .unwrap();
+        assert_eq!(
+            (m["r"].as_str(), m["s"].as_str()),
+            (Some("run-b"), Some("actor-2"))
+        );
     }
 }

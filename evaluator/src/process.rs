@@ -7,9 +7,9 @@ use std::time::Duration;
 
 use policy::method::RunSpec;
 use policy::wire::net_from_weights;
-use proto::{keys, EvalReport, RunPhase};
+use proto::{keys, EvalReport, ProcessState, RunPhase};
 use sim::Setting;
-use transport::{Transport, TransportError};
+use transport::{Heartbeat, Transport, TransportError};
 
 use crate::{evaluate, EvalError, SettingResult, Subject};
 
@@ -295,12 +295,31 @@ const FINAL_WEIGHTS_PATIENCE: Duration = Duration::from_secs(120);
 
 /// Runs until the learner finishes the run (after validating and, with `final_report`,
 /// evaluating its final weights: the version the `Finished` control names, or newer) or `stop`.
+/// Its status heartbeats tell its state (starting until the first weights; running while it
+/// scores weights; idle while none are due; stopping; failed with why) and its last warning.
 pub fn run(
     transport: &Transport,
     spec: &RunSpec,
     opts: &EvaluatorOptions,
     stop: &AtomicBool,
     keep: Option<KeepSnapshot<'_>>,
+) -> Result<EvaluatorExit, ProcessError> {
+    let status = Heartbeat::new(transport)?;
+    let result = run_inner(transport, spec, opts, stop, keep, &status);
+    match &result {
+        Ok(_) => status.set_state(ProcessState::Stopping),
+        Err(e) => status.fail(e),
+    }
+    result
+}
+
+fn run_inner(
+    transport: &Transport,
+    spec: &RunSpec,
+    opts: &EvaluatorOptions,
+    stop: &AtomicBool,
+    keep: Option<KeepSnapshot<'_>>,
+    status: &Heartbeat,
 ) -> Result<EvaluatorExit, ProcessError> {
     let net_cfg = spec.method.net().ok_or_else(|| {
         ProcessError::Other(format!("method {} has no weights to evaluate", spec.method))
@@ -340,6 +359,8 @@ pub fn run(
         if stop.load(Ordering::SeqCst) {
             return Ok(EvaluatorExit::Stopped);
         }
+        status.progress(0, validations);
+        status.beat();
         // The learner sends its final weights before `Finished`, whose header names their
         // version: until weights at least that new are here, the run's last weights are not.
         let final_version = control
@@ -396,6 +417,7 @@ pub fn run(
             && validated != Some(version)
             && (trained >= next_val_due || finished);
         if !(val_due || due || finished) {
+            status.set_state(ProcessState::Idle);
             let _ = weights.next(Duration::from_millis(200))?;
             continue;
         }
@@ -415,6 +437,7 @@ pub fn run(
                 // Skip and count: a later version may be fine (an actor does the same).
                 bad_weights += 1;
                 unusable = Some(version);
+                status.error(format_args!("skipping weights version {version}: {e}"));
                 if bad_weights.is_power_of_two() {
                     tracing::warn!(version, bad_weights, "skipping weights it cannot use: {e}");
                 }
@@ -424,6 +447,7 @@ pub fn run(
                 continue;
             }
         };
+        status.set_state(ProcessState::Running);
         if val_due {
             let t0 = std::time::Instant::now();
             let mut point = validate(spec, &net, opts.threads, trained, started.elapsed())?;

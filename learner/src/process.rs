@@ -13,9 +13,11 @@ use std::time::{Duration, Instant};
 
 use policy::method::RunSpec;
 use policy::wire::{from_batch, weights_message};
-use proto::{keys, Ack, Control, CreditGrant, Metrics, Role, RunPhase, TransitionBatch};
+use proto::{
+    keys, Ack, Control, CreditGrant, Metrics, ProcessState, Role, RunPhase, TransitionBatch,
+};
 use sim::Outcome;
-use transport::{AliveEvent, Publisher, Transport, TransportError};
+use transport::{AliveEvent, Heartbeat, Publisher, Transport, TransportError};
 
 use crate::checkpoint::{self, RunInfo};
 use crate::core::{LearnerCore, LearnerError};
@@ -105,6 +107,8 @@ impl Window {
 
 struct Learner<'a> {
     t: &'a Transport,
+    /// Status heartbeats: the state, and every warning below as the last error.
+    status: &'a Heartbeat,
     spec: &'a RunSpec,
     opts: &'a LearnerOptions,
     core: LearnerCore,
@@ -189,6 +193,7 @@ impl Learner<'_> {
             Err(e) => {
                 self.checkpoint_failures += 1;
                 warn_sometimes(
+                    self.status,
                     "checkpoint",
                     self.checkpoint_failures,
                     format_args!("checkpoint failed (retried later; the write-ahead log holds the episodes): {e}"),
@@ -203,7 +208,12 @@ impl Learner<'_> {
     /// actor that joins is acknowledged, an actor id whose last instance leaves loses its ack
     /// publisher.
     fn on_alive(&mut self, ev: AliveEvent) -> bool {
-        match track_alive(&mut self.actors_alive, &mut self.evaluators_alive, ev) {
+        match track_alive(
+            &mut self.actors_alive,
+            &mut self.evaluators_alive,
+            self.status,
+            ev,
+        ) {
             Membership::Unchanged => false,
             Membership::ActorJoined { index, new_id } => {
                 self.ack(index);
@@ -260,6 +270,7 @@ impl Learner<'_> {
         {
             self.publish_failures += 1;
             warn_sometimes(
+                self.status,
                 "control",
                 self.publish_failures,
                 format_args!("publishing control failed: {e}"),
@@ -277,6 +288,7 @@ impl Learner<'_> {
             if let Err(e) = sent {
                 self.publish_failures += 1;
                 warn_sometimes(
+                    self.status,
                     "republish",
                     self.publish_failures,
                     format_args!("publishing the {what} again failed: {e}"),
@@ -308,6 +320,7 @@ impl Learner<'_> {
                 Err(e) => {
                     self.publish_failures += 1;
                     warn_sometimes(
+                        self.status,
                         "ack",
                         self.publish_failures,
                         format_args!("declaring the ack publisher of actor {actor} failed: {e}"),
@@ -329,6 +342,7 @@ impl Learner<'_> {
         if let Err(e) = sent {
             self.publish_failures += 1;
             warn_sometimes(
+                self.status,
                 "ack",
                 self.publish_failures,
                 format_args!("acknowledging actor {actor} failed: {e}"),
@@ -410,6 +424,8 @@ impl Learner<'_> {
             m.values.insert(k.to_string(), v);
         }
         self.metrics.publish(c.policy_version, &m)?;
+        self.status.progress(c.env_steps, c.rl_episodes);
+        self.status.beat();
         Ok(())
     }
 
@@ -496,6 +512,7 @@ impl Learner<'_> {
         if let Err(e) = crate::runlog::append(&mut self.log, line) {
             self.log_failures += 1;
             warn_sometimes(
+                self.status,
                 "log",
                 self.log_failures,
                 format_args!("metrics.jsonl: a line was not written: {e}"),
@@ -509,6 +526,7 @@ impl Learner<'_> {
         if msg.header.sender.role != Role::Actor {
             self.rejected_episodes += 1;
             warn_sometimes(
+                self.status,
                 "rejected",
                 self.rejected_episodes,
                 format_args!(
@@ -524,6 +542,7 @@ impl Learner<'_> {
             Err(e) => {
                 self.rejected_episodes += 1;
                 warn_sometimes(
+                    self.status,
                     "rejected",
                     self.rejected_episodes,
                     format_args!("episode of actor {actor} does not re-encode: {e}"),
@@ -580,6 +599,7 @@ impl Learner<'_> {
             // high-water-mark ack cover the lost one, so the actor re-sends from the gap.
             self.out_of_order += 1;
             warn_sometimes(
+                self.status,
                 "out-of-order",
                 self.out_of_order,
                 format_args!(
@@ -592,6 +612,7 @@ impl Learner<'_> {
         if known.is_none() && self.accepted_below.len() >= MAX_ACTORS {
             self.rejected_episodes += 1;
             warn_sometimes(
+                self.status,
                 "rejected",
                 self.rejected_episodes,
                 format_args!("refused actor {actor}: this run already has {MAX_ACTORS} actors"),
@@ -601,6 +622,7 @@ impl Learner<'_> {
         let refuse = |l: &mut Self, why: &dyn std::fmt::Display| {
             l.rejected_episodes += 1;
             warn_sometimes(
+                l.status,
                 "rejected",
                 l.rejected_episodes,
                 format_args!("rejected episode {} of actor {actor}: {why}", batch.episode),
@@ -624,6 +646,7 @@ impl Learner<'_> {
             if let Err(e) = self.wal.append(bytes) {
                 self.wal_failures += 1;
                 warn_sometimes(
+                    self.status,
                     "wal",
                     self.wal_failures,
                     format_args!(
@@ -680,6 +703,7 @@ enum Membership {
 fn track_alive(
     actors: &mut AliveActors,
     evaluators: &mut HashSet<proto::Member>,
+    status: &Heartbeat,
     ev: AliveEvent,
 ) -> Membership {
     match ev {
@@ -688,6 +712,7 @@ fn track_alive(
             match actors.join(index, m.instance, MAX_ACTORS) {
                 Joined::Refused => {
                     warn_sometimes(
+                        status,
                         "alive",
                         actors.refused,
                         format_args!("ignoring actor {m}: {MAX_ACTORS} actor ids are alive"),
@@ -830,8 +855,15 @@ const MAX_PENDING: usize = 4096;
 const MAX_ACTORS: usize = proto::control::MAX_CREDIT_GRANTS;
 
 /// Rate-limited warning: the 1st, 2nd, 4th, 8th, … occurrence of each kind (`count`, its
-/// running total) is logged, so a flood of bad input costs a handful of log lines.
-fn warn_sometimes(kind: &'static str, count: u64, what: std::fmt::Arguments<'_>) {
+/// running total) is logged, so a flood of bad input costs a handful of log lines; every one is
+/// the status's last error (`status`, sent at most every [`transport::ERROR_GAP`]).
+fn warn_sometimes(
+    status: &Heartbeat,
+    kind: &'static str,
+    count: u64,
+    what: std::fmt::Arguments<'_>,
+) {
+    status.error(what);
     if count.is_power_of_two() {
         tracing::warn!(kind, count, "{what} (logged at powers of two of the count)");
     }
@@ -848,13 +880,32 @@ pub fn run(
 }
 
 /// [`run`] with every file-system step of the run directory reported to `probe` (tests inject a
-/// full disk through it, `crate::store::Probe`).
+/// full disk through it, `crate::store::Probe`). The process's status heartbeats tell its state
+/// (starting, running; idle while no actor is alive in training; stopping; failed with why) and
+/// its last warning.
 pub fn run_with_probe(
     transport: &Transport,
     spec: &RunSpec,
     opts: &LearnerOptions,
     stop: &AtomicBool,
     probe: crate::store::Probe,
+) -> Result<LearnerExit, ProcessError> {
+    let status = Heartbeat::new(transport)?;
+    let result = run_inner(transport, spec, opts, stop, probe, &status);
+    match &result {
+        Ok(_) => status.set_state(ProcessState::Stopping),
+        Err(e) => status.fail(e),
+    }
+    result
+}
+
+fn run_inner(
+    transport: &Transport,
+    spec: &RunSpec,
+    opts: &LearnerOptions,
+    stop: &AtomicBool,
+    probe: crate::store::Probe,
+    status: &Heartbeat,
 ) -> Result<LearnerExit, ProcessError> {
     let run = transport.run().clone();
     // The run directory: locked for as long as this function runs (`_lock`), its log recovered
@@ -912,6 +963,7 @@ pub fn run_with_probe(
     let alive = transport.watch_alive()?;
     let mut l = Learner {
         t: transport,
+        status,
         spec,
         opts,
         core,
@@ -979,6 +1031,7 @@ pub fn run_with_probe(
         );
     }
     let _token = transport.declare_alive()?;
+    status.set_state(ProcessState::Running);
     l.publish_control();
     l.publish_metrics()?;
 
@@ -1000,11 +1053,12 @@ pub fn run_with_probe(
         let (actors_alive, evaluators_alive) = (&mut l.actors_alive, &mut l.evaluators_alive);
         let finished = imitation::run(&mut l.core, spec, stop, |p| {
             log.observe(&p, (wall0 + start.elapsed()).as_secs_f64());
+            status.beat();
             // Who is alive, as in training: the watcher's queue is bounded and, once full,
             // leaves the zenoh thread that fills it waiting. Actors that join are acknowledged
             // when training starts.
             while let Ok(Some(ev)) = alive.recv_timeout(Duration::ZERO) {
-                track_alive(actors_alive, evaluators_alive, ev);
+                track_alive(actors_alive, evaluators_alive, status, ev);
             }
             // Nobody should send episodes now (actors wait for the training phase): drain and
             // count, so nothing piles up in the subscriber's queue during imitation. Progress
@@ -1013,6 +1067,7 @@ pub fn run_with_probe(
             while let Ok(Some(msg)) = subscriber.try_recv() {
                 refused += 1;
                 warn_sometimes(
+                    status,
                     "imitation",
                     refused,
                     format_args!(
@@ -1096,6 +1151,7 @@ pub fn run_with_probe(
 
     while l.phase() == RunPhase::Training {
         if stop.load(Ordering::SeqCst) {
+            status.set_state(ProcessState::Stopping);
             l.checkpoint()?;
             return Ok(LearnerExit::Stopped);
         }
@@ -1103,6 +1159,13 @@ pub fn run_with_probe(
         while let Some(ev) = alive.recv_timeout(Duration::ZERO)? {
             membership_changed |= l.on_alive(ev);
         }
+        // Idle while no actor is alive (nothing can arrive), running otherwise.
+        status.set_state(if l.actors_alive.is_empty() {
+            ProcessState::Idle
+        } else {
+            ProcessState::Running
+        });
+        status.beat();
         if membership_changed {
             l.publish_control();
         }
@@ -1215,10 +1278,12 @@ pub fn run_with_probe(
         rl_episodes = l.core.counters().rl_episodes,
         "run finished; waiting for actors and evaluators to leave"
     );
+    status.set_state(ProcessState::Stopping);
     let deadline = Instant::now() + opts.linger;
     let mut last_repeat = Instant::now();
     while Instant::now() < deadline && !(l.actors_alive.is_empty() && l.evaluators_alive.is_empty())
     {
+        status.beat();
         // The final weights and the `Finished` control reach a subscriber they were dropped for.
         if last_repeat.elapsed() >= opts.metrics_interval {
             last_repeat = Instant::now();

@@ -284,6 +284,56 @@ pub fn all_status(run: &RunId) -> Topic<Status> {
     )
 }
 
+/// The run chunk of a key expression that stands for every run (`fsrl/*/…`): a [`RunId`] is
+/// never `*`, so no run's own key starts with it.
+pub const EVERY_RUN: &str = "*";
+
+fn every_run_family(name: &str) -> String {
+    format!("{ROOT}/{EVERY_RUN}/{name}")
+}
+
+/// `fsrl/*/metrics/**`: the metrics of every run (a tool watching whatever runs it sees, such
+/// as `fsrl dashboard` without `--run`). A message is taken only when its header names the run
+/// of the key it came on ([`run_of_key`]).
+pub fn every_run_metrics() -> Topic<Metrics> {
+    Topic::new(
+        every_run_family("metrics"),
+        Some("**".into()),
+        Delivery::BestEffort,
+        Plane::Telemetry,
+        Fanout::ManyToOne,
+    )
+}
+
+/// `fsrl/*/status/**`: the heartbeats of every run (as [`every_run_metrics`]).
+pub fn every_run_status() -> Topic<Status> {
+    Topic::new(
+        every_run_family("status"),
+        Some("**".into()),
+        Delivery::BestEffort,
+        Plane::Telemetry,
+        Fanout::ManyToOne,
+    )
+}
+
+/// The run of a concrete key this module built (`fsrl/<run>/…`); `None` for anything else
+/// (another root, a wildcard or invalid run chunk).
+pub fn run_of_key(key: &str) -> Option<RunId> {
+    let rest = key.strip_prefix(ROOT)?.strip_prefix('/')?;
+    let (run, _) = rest.split_once('/')?;
+    RunId::new(run).ok()
+}
+
+/// Whether `topic` stands for every run (`fsrl/*/…`, [`every_run_metrics`],
+/// [`every_run_status`]).
+pub fn is_every_run<M>(topic: &Topic<M>) -> bool {
+    topic
+        .key_expr()
+        .strip_prefix(ROOT)
+        .and_then(|r| r.strip_prefix('/'))
+        .is_some_and(|r| r.starts_with(&format!("{EVERY_RUN}/")))
+}
+
 /// `fsrl/<run>/**`: everything of a run (for tools such as `z_sub -k`).
 pub fn run_prefix(run: &RunId) -> String {
     format!("{ROOT}/{run}/**")
@@ -390,6 +440,16 @@ mod tests {
         assert_eq!(ack(&r, 7).service_name(), "fsrl/r1/ack/7");
         assert_eq!(weights(&r).fanout(), Fanout::OneToMany);
         assert_eq!(run_prefix(&r), "fsrl/r1/**");
+        assert_eq!(every_run_metrics().key_expr(), "fsrl/*/metrics/**");
+        assert_eq!(every_run_status().key_expr(), "fsrl/*/status/**");
+        assert!(every_run_metrics().is_wildcard() && is_every_run(&every_run_status()));
+        assert!(!is_every_run(&all_metrics(&r)));
+        assert_eq!(every_run_metrics().plane(), Plane::Telemetry);
+        let key = metrics(&r, SenderId::actor(2));
+        assert_eq!(run_of_key(key.key_expr()), Some(r.clone()));
+        assert_eq!(run_of_key(every_run_metrics().key_expr()), None);
+        assert_eq!(run_of_key("other/r1/metrics"), None);
+        assert_eq!(run_of_key("fsrl/r1"), None);
     }
 
     #[test]

@@ -130,7 +130,8 @@ pub enum ProcessState {
     Failed,
 }
 
-/// Heartbeat of a process, published periodically.
+/// Heartbeat of a process: sent when its state changes, soon after it hits an error, and
+/// every few seconds otherwise (`transport::Heartbeat`; learner, actors and evaluator).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Status {
     /// Life-cycle state.
@@ -141,7 +142,9 @@ pub struct Status {
     pub env_steps: u64,
     /// Episodes so far.
     pub episodes: u64,
-    /// Free text (≤ 4096 bytes), e.g. an error message.
+    /// Free text (≤ 4096 bytes): the last error the process hit and went on after (a rejected
+    /// message, a failed publication, a refused episode, ...), or with [`ProcessState::Failed`]
+    /// why it failed; empty while there was none.
     pub detail: String,
 }
 

@@ -41,7 +41,13 @@
 //!   ([`AliveEvent::Joined`] / [`AliveEvent::Left`], current members first),
 //!   [`Transport::alive_members`] (snapshot).
 //! * [`Transport::rejected_count`]: malformed, wrong-version or foreign-run messages received
-//!   (each logged once per source with `tracing::warn!`, then only counted, and skipped).
+//!   (each logged once per source with `tracing::warn!`, then only counted, and skipped);
+//!   [`Transport::last_rejection`], the newest in words.
+//! * [`Heartbeat`]: the process's [`proto::Status`] (life-cycle state, last error) on its
+//!   status key, on changes and every [`HEARTBEAT_EVERY`].
+//! * Every run at once: [`proto::keys::every_run_metrics`] and `…status` subscriptions take a
+//!   message only when its header's run is the run of its key; [`Transport::watch_alive_of`]
+//!   watches the members of any run.
 //!
 //! Every call is blocking (bounded by a timeout where it waits); all handles are `Send + Sync`.
 //! Roles call them from their own threads (simulation and training never run on an async
@@ -49,6 +55,7 @@
 
 mod config;
 mod error;
+mod heartbeat;
 mod iox;
 mod reject;
 mod zenoh_impl;
@@ -68,6 +75,7 @@ pub use config::{
     ZenohTls,
 };
 pub use error::TransportError;
+pub use heartbeat::{Heartbeat, ERROR_GAP, HEARTBEAT_EVERY};
 pub use iox::StaleCleanup;
 
 use iox::{IoxNode, IoxPublisher, IoxSubscriber};
@@ -141,6 +149,11 @@ impl Transport {
     /// Messages rejected on receive by any subscriber of this transport so far.
     pub fn rejected_count(&self) -> u64 {
         self.inner.rejections.total()
+    }
+
+    /// The newest of those rejections in words (topic, source, why); empty before the first.
+    pub fn last_rejection(&self) -> String {
+        self.inner.rejections.last()
     }
 
     /// Removes the resources of crashed processes (iceoryx2 dead nodes). A no-op on the zenoh
@@ -332,10 +345,15 @@ impl Transport {
 
     /// Watches membership: first a `Joined` for every member alive now, then joins and leaves.
     pub fn watch_alive(&self) -> Result<AliveWatcher, TransportError> {
-        let queue =
-            zenoh_impl::watch_liveliness(&self.inner.session, &keys::all_alive(self.run()))?;
+        self.watch_alive_of(self.run())
+    }
+
+    /// [`Transport::watch_alive`] for the members of another run (a tool watching several
+    /// runs, such as `fsrl dashboard` without `--run`).
+    pub fn watch_alive_of(&self, run: &RunId) -> Result<AliveWatcher, TransportError> {
+        let queue = zenoh_impl::watch_liveliness(&self.inner.session, &keys::all_alive(run))?;
         Ok(AliveWatcher {
-            run: self.run().clone(),
+            run: run.clone(),
             queue,
             state: Mutex::new(WatcherState::default()),
             _transport: self.clone(),
@@ -531,7 +549,9 @@ impl<M: Body> Publisher<M> {
 /// Decoding + rejection accounting shared by subscribers.
 #[derive(Clone)]
 struct Receiver {
-    run: RunId,
+    /// The run a message must be of: this transport's, or for a subscription to every run
+    /// (`fsrl/*/…`, [`keys::every_run_metrics`]) the run of the key it came on.
+    run: Option<RunId>,
     limit: usize,
     rejected: RejectCounter,
     /// For a subscription to a family of per-sender keys (`…/transitions/*`,
@@ -580,25 +600,42 @@ impl SenderKeys {
     }
 
     fn matches(&self, key: &str, sender: proto::SenderId) -> bool {
+        // A subscription to every run: the prefix with the key's own run in place of `*`.
+        fn concrete<'a>(p: &'a str, key: &str) -> Option<std::borrow::Cow<'a, str>> {
+            let rest = p
+                .strip_prefix(keys::ROOT)
+                .and_then(|r| r.strip_prefix('/'))
+                .and_then(|r| r.strip_prefix(keys::EVERY_RUN))
+                .and_then(|r| r.strip_prefix('/'));
+            match rest {
+                Some(rest) => {
+                    keys::run_of_key(key).map(|run| format!("{}/{run}/{rest}", keys::ROOT).into())
+                }
+                None => Some(p.into()),
+            }
+        }
         match self {
             SenderKeys::Index(p, role) => {
-                key.strip_prefix(p.as_str()) == Some(&*sender.index.to_string())
+                concrete(p, key)
+                    .is_some_and(|p| key.strip_prefix(&*p) == Some(&*sender.index.to_string()))
                     && role.is_none_or(|r| r == sender.role)
             }
-            SenderKeys::RoleIndex(p) => key
-                .strip_prefix(p.as_str())
-                .and_then(|t| t.split_once('/'))
-                .is_some_and(|(role, index)| {
-                    role == sender.role.to_string() && index == sender.index.to_string()
-                }),
+            SenderKeys::RoleIndex(p) => concrete(p, key).is_some_and(|p| {
+                key.strip_prefix(&*p)
+                    .and_then(|t| t.split_once('/'))
+                    .is_some_and(|(role, index)| {
+                        role == sender.role.to_string() && index == sender.index.to_string()
+                    })
+            }),
         }
     }
 }
 
 impl Receiver {
     fn new(t: &Transport, key: &str) -> Self {
+        let every_run = key.starts_with(&format!("{}/{}/", keys::ROOT, keys::EVERY_RUN));
         Self {
-            run: t.run().clone(),
+            run: (!every_run).then(|| t.run().clone()),
             limit: t.inner.config.max_message_bytes,
             rejected: RejectCounter::new(Arc::clone(&t.inner.rejections), key),
             sender_keys: SenderKeys::of(key),
@@ -609,8 +646,23 @@ impl Receiver {
     /// Decodes and checks one message; `source` (who sent it) is formatted only when the
     /// message is rejected.
     fn accept<M: Body>(&self, bytes: &[u8], source: &dyn fmt::Display) -> Option<Message<M>> {
+        self.accept_of(bytes, source, None)
+    }
+
+    /// [`Receiver::accept`]; `key`: the zenoh key the message came on, which names the run a
+    /// subscription to every run requires (without it such a message is refused).
+    fn accept_of<M: Body>(
+        &self,
+        bytes: &[u8],
+        source: &dyn fmt::Display,
+        key: Option<&str>,
+    ) -> Option<Message<M>> {
+        let run_ok = |run: &RunId| match &self.run {
+            Some(own) => run == own,
+            None => key.and_then(keys::run_of_key).as_ref() == Some(run),
+        };
         let why = match proto::decode_with_limit::<M>(bytes, self.limit) {
-            Ok(m) if m.header.run == self.run => {
+            Ok(m) if run_ok(&m.header.run) => {
                 if self.learner_only && m.header.sender.role != proto::Role::Learner {
                     Rejection::WrongSender(m.header.sender.to_string())
                 } else {
@@ -628,7 +680,7 @@ impl Receiver {
     /// per-sender keys the header's sender must be the key's (the router's access control
     /// binds keys to credentials, so the header cannot claim another sender).
     fn accept_keyed<M: Body>(&self, bytes: &[u8], key: &str) -> Option<Message<M>> {
-        let m = self.accept::<M>(bytes, &key)?;
+        let m = self.accept_of::<M>(bytes, &key, Some(key))?;
         match &self.sender_keys {
             Some(k) if !k.matches(key, m.header.sender) => {
                 self.rejected

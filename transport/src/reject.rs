@@ -37,12 +37,23 @@ const MAX_WARNED_SOURCES: usize = 256;
 pub(crate) struct Rejections {
     total: AtomicU64,
     warned: Mutex<HashSet<String>>,
+    /// What the newest rejection was (for the process's status: its last error).
+    last: Mutex<String>,
 }
 
 impl Rejections {
     pub(crate) fn total(&self) -> u64 {
         self.total.load(Ordering::Relaxed)
     }
+
+    /// The newest rejection, in words (empty before the first).
+    pub(crate) fn last(&self) -> String {
+        lock(&self.last).clone()
+    }
+}
+
+fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(|p| p.into_inner())
 }
 
 /// Per-subscriber view: its own count plus the transport-wide tracker.
@@ -72,11 +83,18 @@ impl RejectCounter {
         self.local.fetch_add(1, Ordering::Relaxed);
         self.shared.total.fetch_add(1, Ordering::Relaxed);
         let source = source.to_string();
+        {
+            let mut last = lock(&self.shared.last);
+            last.clear();
+            use std::fmt::Write;
+            let _ = write!(
+                last,
+                "rejected a message on {} from {source}: {why}",
+                self.topic
+            );
+        }
         let first = {
-            let mut w = match self.shared.warned.lock() {
-                Ok(w) => w,
-                Err(poisoned) => poisoned.into_inner(),
-            };
+            let mut w = lock(&self.shared.warned);
             if w.len() < MAX_WARNED_SOURCES {
                 w.insert(source.clone())
             } else {

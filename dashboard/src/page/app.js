@@ -1,104 +1,126 @@
-// The live page of one fsrl run: events from /events (Server-Sent Events, served by fsrl
-// itself), the model below, and a redraw at most every 200 ms. No library, no network other
-// than this page's own server.
+// The live page of fsrl runs: events from /events (Server-Sent Events, served by fsrl itself),
+// one model per run below, and a redraw at most every 200 ms. The tiles and charts show the run
+// selected in the runs table (the first one seen until another is chosen; kept in the URL's
+// #run=...), the processes table every run's processes. No library, no network other than this
+// page's own server.
 "use strict";
 
 const S = {
-  run: "",
-  validation: new Map(), // RL episodes -> {success, collision, timeout, disc, nav}
-  learner: [],           // one point per RL episode count: {x, lagMean, lagMax, ratio}
-  throughput: [],        // {x, y}: RL episodes/s between learner messages
-  actorRates: new Map(), // actor -> [{x, y}]
-  lastLearner: null,     // {e, t, v}
-  lastActor: new Map(),  // actor -> {e, t}
-  procs: new Map(),      // sender -> {role, up, state, detail, episodes, metricsAt, error}
-  target: 0,
-  phase: "–",
+  every: false,          // a page of every run it sees (fsrl dashboard without --run)
+  runs: new Map(),       // run id -> model (newRun)
+  selected: decodeURIComponent((location.hash.match(/run=([^&]*)/) || [])[1] || ""),
   updated: 0,
 };
 
-function proc(sender, role) {
-  let p = S.procs.get(sender);
+function newRun(id) {
+  return {
+    id: id,
+    validation: new Map(), // RL episodes -> {success, collision, timeout, disc, nav}
+    learner: [],           // one point per RL episode count: {x, lagMean, lagMax, ratio}
+    throughput: [],        // {x, y}: RL episodes/s between learner messages
+    actorRates: new Map(), // actor -> [{x, y}]
+    lastLearner: null,     // {e, t, v}
+    lastActor: new Map(),  // actor -> {e, t}
+    procs: new Map(),      // sender -> {role, up, state, error, ...}
+    target: 0,
+    phase: "–",
+  };
+}
+
+function runOf(id) {
+  let r = S.runs.get(id);
+  if (!r) {
+    r = newRun(id);
+    S.runs.set(id, r);
+    if (!S.selected) S.selected = id;
+  }
+  return r;
+}
+
+function proc(R, sender, role) {
+  let p = R.procs.get(sender);
   if (!p) {
-    p = { role: role, up: null, state: "", detail: "", episodes: null, metricsAt: 0,
-          counters: {}, error: "", errorAt: 0, leftAt: 0 };
-    S.procs.set(sender, p);
+    p = { role: role, up: null, state: "", episodes: null, metricsAt: 0,
+          error: "", errorAt: 0, statusAt: 0, leftAt: 0 };
+    R.procs.set(sender, p);
   }
   return p;
 }
 
-// Counters of things that went wrong (rejected messages, failed writes or publications, lost
-// episodes, ...): the last one that grew is the process's last error.
-const ERROR_COUNTER = /rejected|failures|lost|bad_|timeouts|refused|skipped/;
-
-function onMetrics(ev) {
-  const v = ev.v, p = proc(ev.s, ev.role);
+function onMetrics(R, ev) {
+  const v = ev.v, p = proc(R, ev.s, ev.role);
   p.metricsAt = Date.now();
   p.episodes = ev.e;
-  for (const [k, x] of Object.entries(v)) {
-    if (!ERROR_COUNTER.test(k)) continue;
-    const before = p.counters[k];
-    if (before !== undefined ? x > before : x > 0) {
-      p.error = `${k.replace(/_/g, " ")}: ${x}`;
-      p.errorAt = Date.now();
-    }
-    p.counters[k] = x;
-  }
   if (ev.role === "evaluator" && v.validation_episode !== undefined) {
-    S.validation.set(v.validation_episode, {
+    R.validation.set(v.validation_episode, {
       success: v.validation_success_rate, collision: v.validation_collision_rate,
       timeout: v.validation_timeout_rate, disc: v.validation_discomfort,
       nav: v.validation_nav_time_s,
     });
   } else if (ev.role === "learner") {
-    if (v.episodes_target !== undefined) S.target = v.episodes_target;
+    if (v.episodes_target !== undefined) R.target = v.episodes_target;
     if (v.imitation_done === 1) {
-      S.phase = "RL";
-      const last = S.lastLearner;
+      R.phase = "RL";
+      const last = R.lastLearner;
       if (last && ev.t > last.t && ev.e >= last.e && ev.e > 0) {
-        S.throughput.push({ x: ev.e, y: (ev.e - last.e) / (ev.t - last.t) });
+        R.throughput.push({ x: ev.e, y: (ev.e - last.e) / (ev.t - last.t) });
       }
-      if (ev.e > 0 && (S.learner.length === 0 || S.learner[S.learner.length - 1].x < ev.e)) {
-        S.learner.push({ x: ev.e, lagMean: v.policy_lag_mean, lagMax: v.policy_lag_max, ratio: v.updates_per_episode });
+      if (ev.e > 0 && (R.learner.length === 0 || R.learner[R.learner.length - 1].x < ev.e)) {
+        R.learner.push({ x: ev.e, lagMean: v.policy_lag_mean, lagMax: v.policy_lag_max, ratio: v.updates_per_episode });
       }
-      S.lastLearner = { e: ev.e, t: ev.t, v: v };
+      R.lastLearner = { e: ev.e, t: ev.t, v: v };
     } else if (v.imitation_epoch !== undefined) {
-      S.phase = "imitation " + v.imitation_epoch + "/" + v.imitation_epochs;
+      R.phase = "imitation " + v.imitation_epoch + "/" + v.imitation_epochs;
     } else if (v.demo_episodes !== undefined) {
-      S.phase = "demos " + v.demo_episodes + "/" + v.demo_target;
+      R.phase = "demos " + v.demo_episodes + "/" + v.demo_target;
     }
   } else if (ev.role === "actor") {
-    const last = S.lastActor.get(ev.s);
-    const x = S.lastLearner ? S.lastLearner.e : 0;
+    const last = R.lastActor.get(ev.s);
+    const x = R.lastLearner ? R.lastLearner.e : 0;
     if (last && ev.t > last.t && ev.e >= last.e && x > 0) {
-      if (!S.actorRates.has(ev.s)) S.actorRates.set(ev.s, []);
-      S.actorRates.get(ev.s).push({ x: x, y: (ev.e - last.e) / (ev.t - last.t) });
+      if (!R.actorRates.has(ev.s)) R.actorRates.set(ev.s, []);
+      R.actorRates.get(ev.s).push({ x: x, y: (ev.e - last.e) / (ev.t - last.t) });
     }
-    S.lastActor.set(ev.s, { e: ev.e, t: ev.t });
+    R.lastActor.set(ev.s, { e: ev.e, t: ev.t });
+  }
+}
+
+// A heartbeat (proto::Status): the process's state, and its last error in `detail`.
+function onStatus(R, ev) {
+  const p = proc(R, ev.s, ev.role);
+  p.state = ev.state;
+  p.statusAt = Date.now();
+  if (ev.detail !== p.error) {
+    p.error = ev.detail;
+    p.errorAt = Date.now();
   }
 }
 
 function onEvent(ev) {
-  switch (ev.k) {
-    case "run": S.run = ev.run; break;
-    case "m": onMetrics(ev); break;
-    case "s": {
-      const p = proc(ev.s, ev.role);
-      p.state = ev.state; p.detail = ev.detail;
-      if (ev.state === "failed" || (ev.detail && /error|fail|refus|cannot/i.test(ev.detail))) {
-        p.error = ev.detail; p.errorAt = Date.now();
+  if (ev.k === "run") {
+    S.every = ev.every === true;
+    if (ev.run) runOf(ev.run);
+  } else {
+    const R = runOf(ev.r);
+    switch (ev.k) {
+      case "m": onMetrics(R, ev); break;
+      case "s": onStatus(R, ev); break;
+      case "a": {
+        const p = proc(R, ev.s, ev.role);
+        p.up = ev.up;
+        p.leftAt = ev.up ? 0 : Date.now();
+        break;
       }
-      break;
-    }
-    case "a": {
-      const p = proc(ev.s, ev.role);
-      p.up = ev.up;
-      p.leftAt = ev.up ? 0 : Date.now();
-      break;
     }
   }
   S.updated = Date.now();
   schedule();
+}
+
+function select(id) {
+  S.selected = id;
+  history.replaceState(null, "", "#run=" + encodeURIComponent(id));
+  draw();
 }
 
 let pending = null;
@@ -182,9 +204,15 @@ function chart(id, series, opt) {
   svg.innerHTML = out;
 }
 
+const ORDER = { learner: 0, evaluator: 1, actor: 2, monitor: 3 };
+const ago = t => `${Math.round((Date.now() - t) / 1000)} s ago`;
+const actorsUp = R => [...R.procs.values()].filter(p => p.role === "actor" && p.up === true).length;
+
 function draw() {
-  document.getElementById("run").textContent = S.run;
-  const val = [...S.validation.entries()].sort((a, b) => a[0] - b[0]);
+  const R = S.runs.get(S.selected) || newRun(S.selected || "");
+  document.getElementById("run").textContent = S.selected || (S.every ? "no run seen yet" : "");
+  document.getElementById("scope").textContent = S.every ? `every run it sees (${S.runs.size})` : "";
+  const val = [...R.validation.entries()].sort((a, b) => a[0] - b[0]);
   const vs = key => val.map(([x, v]) => ({ x: x, y: v[key] }));
   chart("chart-validation", [
     { name: "success", color: COLORS.success, pts: vs("success"), dots: true },
@@ -195,48 +223,81 @@ function draw() {
     { name: "Disc.", color: COLORS.disc, pts: vs("disc"), dots: true },
     { name: "Nav. Time (s, right)", color: COLORS.nav, pts: vs("nav"), dots: true, axis: "right" },
   ], { leftMin: 0, right: true, leftLabel: "Disc.", rightLabel: "s", empty: "no validation yet" });
-  const actors = [...S.actorRates.entries()].sort();
+  const actors = [...R.actorRates.entries()].sort();
   chart("chart-throughput", [
-    { name: "all actors", color: COLORS.total, pts: S.throughput },
+    { name: "all actors", color: COLORS.total, pts: R.throughput },
     ...actors.map(([a, pts], i) => ({ name: a, color: ACTOR_COLORS[i % ACTOR_COLORS.length], pts: pts })),
   ], { leftMin: 0, empty: "no RL episodes yet" });
   chart("chart-lag", [
-    { name: "lag mean", color: COLORS.lagMean, pts: S.learner.map(p => ({ x: p.x, y: p.lagMean })) },
-    { name: "lag max", color: COLORS.lagMax, pts: S.learner.map(p => ({ x: p.x, y: p.lagMax })) },
-    { name: "updates/episode (right)", color: COLORS.ratio, pts: S.learner.map(p => ({ x: p.x, y: p.ratio })), axis: "right" },
+    { name: "lag mean", color: COLORS.lagMean, pts: R.learner.map(p => ({ x: p.x, y: p.lagMean })) },
+    { name: "lag max", color: COLORS.lagMax, pts: R.learner.map(p => ({ x: p.x, y: p.lagMax })) },
+    { name: "updates/episode (right)", color: COLORS.ratio, pts: R.learner.map(p => ({ x: p.x, y: p.ratio })), axis: "right" },
   ], { leftMin: 0, right: true, rightMin: 0, leftLabel: "versions", rightLabel: "updates", empty: "no RL episodes yet" });
 
   const set = (id, text) => { document.getElementById(id).textContent = text; };
-  const last = S.lastLearner;
-  set("phase", S.phase);
-  set("episodes", last ? (S.target ? `${last.e} / ${S.target}` : String(last.e)) : "–");
-  const actorsUp = [...S.procs.values()].filter(p => p.role === "actor" && p.up === true).length;
-  set("actors-alive", String(actorsUp));
-  const tp = S.throughput[S.throughput.length - 1];
+  const last = R.lastLearner;
+  const episodes = X => X.lastLearner ? (X.target ? `${X.lastLearner.e} / ${X.target}` : String(X.lastLearner.e)) : "–";
+  set("phase", R.phase);
+  set("episodes", episodes(R));
+  set("actors-alive", String(actorsUp(R)));
+  const tp = R.throughput[R.throughput.length - 1];
   set("eps", tp ? tp.y.toFixed(2) : "–");
   set("lag", last && last.v.policy_lag_mean !== undefined ? last.v.policy_lag_mean.toFixed(2) : "–");
   set("ratio", last && last.v.updates_per_episode !== undefined ? last.v.updates_per_episode.toFixed(1) : "–");
   set("last-success", val.length ? `${val[val.length - 1][1].success.toFixed(2)} @ ${val[val.length - 1][0]}` : "–");
 
-  const order = { learner: 0, evaluator: 1, actor: 2, monitor: 3 };
-  const rows = [...S.procs.entries()].filter(([, p]) => p.role !== "monitor").sort((a, b) =>
-    (order[a[1].role] - order[b[1].role]) || a[0].localeCompare(b[0], undefined, { numeric: true }));
+  const cell = (tr, text, cls) => { const td = document.createElement("td"); td.textContent = text; if (cls) td.className = cls; tr.appendChild(td); return td; };
+  // The runs (a page of every run): one row each, the selected one highlighted; a click selects.
+  document.getElementById("runs-section").hidden = !S.every;
+  const runs = document.getElementById("runs");
+  runs.textContent = "";
+  for (const X of [...S.runs.values()].sort((a, b) => a.id.localeCompare(b.id, undefined, { numeric: true }))) {
+    const tr = document.createElement("tr");
+    tr.dataset.run = X.id;
+    tr.dataset.validations = String(X.validation.size);
+    tr.dataset.episodes = String(X.lastLearner ? X.lastLearner.e : 0);
+    if (X.id === S.selected) tr.className = "selected";
+    const b = document.createElement("button");
+    b.textContent = X.id;
+    b.onclick = () => select(X.id);
+    cell(tr, "").appendChild(b);
+    cell(tr, X.phase);
+    cell(tr, episodes(X));
+    const xv = [...X.validation.entries()].sort((a, b) => a[0] - b[0]);
+    cell(tr, xv.length ? `${xv[xv.length - 1][1].success.toFixed(2)} @ ${xv[xv.length - 1][0]}` : "–");
+    const procs = [...X.procs.values()].filter(p => p.role !== "monitor");
+    cell(tr, `${procs.filter(p => p.up === true).length} / ${procs.length}`);
+    const errors = procs.filter(p => p.error || p.state === "failed").length;
+    cell(tr, errors ? String(errors) : "", "err");
+    runs.appendChild(tr);
+  }
+
+  // Every run's processes: liveliness, and the state and last error of their heartbeats.
+  const rows = [];
+  for (const X of S.runs.values()) {
+    for (const [sender, p] of X.procs) if (p.role !== "monitor") rows.push([X.id, sender, p]);
+  }
+  rows.sort((a, b) => a[0].localeCompare(b[0], undefined, { numeric: true }) ||
+    (ORDER[a[2].role] - ORDER[b[2].role]) || a[1].localeCompare(b[1], undefined, { numeric: true }));
   const tbody = document.getElementById("processes");
   tbody.textContent = "";
-  for (const [sender, p] of rows) {
+  for (const [run, sender, p] of rows) {
     const tr = document.createElement("tr");
+    tr.dataset.run = run;
     tr.dataset.sender = sender;
     tr.dataset.alive = String(p.up === true);
-    const cell = (text, cls) => { const td = document.createElement("td"); td.textContent = text; if (cls) td.className = cls; tr.appendChild(td); return td; };
-    cell(sender);
-    const ago = t => `${Math.round((Date.now() - t) / 1000)} s ago`;
-    const alive = cell(p.up === null ? "?" : p.up ? "alive" : p.leftAt ? "gone " + ago(p.leftAt) : "gone");
+    tr.dataset.state = p.state;
+    if (run === S.selected && S.every) tr.className = "selected";
+    cell(tr, run);
+    cell(tr, sender);
+    const alive = cell(tr, p.up === null ? "?" : p.up ? "alive" : p.leftAt ? "gone " + ago(p.leftAt) : "gone");
     const dot = document.createElement("span");
     dot.className = "dot " + (p.up ? "up" : "down");
     alive.prepend(dot);
-    cell(p.episodes === null ? "–" : String(p.episodes));
-    cell(p.metricsAt ? ago(p.metricsAt) : "–");
-    cell(p.error ? `${p.error} (${ago(p.errorAt)})` : "", "err");
+    cell(tr, p.state ? p.state : "–", "state " + p.state);
+    cell(tr, p.episodes === null ? "–" : String(p.episodes));
+    cell(tr, p.metricsAt ? ago(p.metricsAt) : "–");
+    cell(tr, p.error ? `${p.error} (${ago(p.errorAt)})` : "", "err");
     tbody.appendChild(tr);
   }
   document.getElementById("updated").textContent = S.updated ? "last event " + new Date(S.updated).toLocaleTimeString() : "";
@@ -249,7 +310,7 @@ source.onerror = () => { link.textContent = "reconnecting"; link.className = "li
 source.onmessage = m => {
   // A reconnected stream starts again from the history: the model is rebuilt from it.
   const ev = JSON.parse(m.data);
-  if (ev.k === "run" && S.run) { location.reload(); return; }
+  if (ev.k === "run" && S.updated) { location.reload(); return; }
   onEvent(ev);
 };
 setInterval(draw, 1000); // the "s ago" column

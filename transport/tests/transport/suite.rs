@@ -717,3 +717,147 @@ fn a_header_naming_another_sender_than_its_key_is_rejected() {
     assert!(metrics_sub.rejected_count() >= 2);
     assert_eq!(sub.try_recv().expect("try_recv"), None);
 }
+
+/// A subscription to every run (`fsrl/*/metrics/**`): each run's messages arrive with their
+/// run; a message whose header names another run than its key's is rejected, and the newest
+/// rejection is there in words.
+#[test]
+fn every_run_subscription_takes_each_run_on_its_own_keys() {
+    let mut net = Net::new(Backend::Zenoh);
+    let monitor = net.open(SenderId::monitor(0));
+    let metrics = monitor.subscriber(&keys::every_run_metrics()).expect("sub");
+    let other = RunId::new(format!("{}-b", net.run)).expect("run id");
+    let mut cfg = net.config(SenderId::learner());
+    cfg.run = other.clone();
+    let b = net.open_with(cfg);
+    let a = net.open(SenderId::actor(1));
+    let pa = a
+        .publisher(&keys::metrics(&net.run, a.sender()))
+        .expect("pub");
+    let pb = b
+        .publisher(&keys::metrics(&other, b.sender()))
+        .expect("pub");
+    for p in [&pa, &pb] {
+        assert!(p.wait_for_subscribers(WAIT).expect("matching"));
+    }
+    pa.publish(1, &fixtures::metrics()).expect("publish");
+    pb.publish(2, &fixtures::metrics()).expect("publish");
+    let mut runs = Vec::new();
+    for _ in 0..2 {
+        let m: Message<Metrics> = metrics.recv_timeout(WAIT).expect("recv").expect("metrics");
+        runs.push((m.header.run.to_string(), m.header.sender));
+    }
+    runs.sort();
+    assert_eq!(
+        runs,
+        [
+            (net.run.to_string(), SenderId::actor(1)),
+            (other.to_string(), SenderId::learner())
+        ]
+    );
+    // Run b's learner message on run a's learner key: the key's run is not the header's.
+    let header = Header::new::<Metrics>(other.clone(), SenderId::learner(), 9, 0);
+    let forged = proto::encode(&header, &fixtures::metrics()).expect("encode");
+    let wrong = a
+        .publisher(&keys::metrics(&net.run, SenderId::learner()))
+        .expect("pub");
+    assert!(wrong.wait_for_subscribers(WAIT).expect("matching"));
+    wrong.publish_raw(forged).expect("raw");
+    let deadline = Instant::now() + WAIT;
+    while metrics.rejected_count() == 0 {
+        assert!(metrics.try_recv().expect("recv").is_none(), "accepted");
+        assert!(Instant::now() < deadline, "not rejected");
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    let why = monitor.last_rejection();
+    assert!(
+        why.contains(other.as_str()) && why.contains("fsrl/*/metrics/**"),
+        "{why}"
+    );
+    // A sender on another's key within its run is refused too, as on one run's subscription.
+    let header = Header::new::<Metrics>(net.run.clone(), SenderId::actor(2), 0, 0);
+    pa.publish_raw(proto::encode(&header, &fixtures::metrics()).expect("encode"))
+        .expect("raw");
+    let deadline = Instant::now() + WAIT;
+    while metrics.rejected_count() < 2 {
+        assert!(metrics.try_recv().expect("recv").is_none(), "accepted");
+        assert!(Instant::now() < deadline, "not rejected");
+        std::thread::sleep(Duration::from_millis(10));
+    }
+}
+
+/// A process's heartbeats: the state at once when it changes, its last error soon after, a
+/// rejected message as an error, and why it failed.
+#[test]
+fn heartbeats_carry_the_state_and_the_last_error() {
+    use proto::{ProcessState, Status};
+    let mut net = Net::new(Backend::Zenoh);
+    let monitor = net.open(SenderId::monitor(0));
+    let status = monitor
+        .subscriber(&keys::all_status(&net.run))
+        .expect("sub");
+    let actor = net.open(SenderId::actor(3));
+    // The subscription is matched before the first heartbeat goes.
+    let probe = actor
+        .publisher(&keys::status(&net.run, actor.sender()))
+        .expect("pub");
+    assert!(probe.wait_for_subscribers(WAIT).expect("matching"));
+    let hb = transport::Heartbeat::new(&actor).expect("heartbeat");
+    // The next heartbeat, beating as a process's loop does.
+    let next = |what: &str| -> Status {
+        let deadline = Instant::now() + WAIT;
+        loop {
+            hb.beat();
+            if let Some(m) = status
+                .recv_timeout(Duration::from_millis(20))
+                .expect("recv")
+            {
+                assert_eq!(m.header.sender, SenderId::actor(3));
+                return m.body;
+            }
+            assert!(Instant::now() < deadline, "no heartbeat: {what}");
+        }
+    };
+    assert_eq!(next("start").state, ProcessState::Starting);
+    hb.set_state(ProcessState::Running);
+    let s = next("running");
+    assert_eq!((s.state, s.detail.as_str()), (ProcessState::Running, ""));
+    let t0 = Instant::now();
+    hb.error("publishing control failed: no route");
+    let s = next("error");
+    assert_eq!(s.detail, "publishing control failed: no route");
+    assert!(
+        t0.elapsed() < transport::HEARTBEAT_EVERY,
+        "sent as a new error, not as a beat"
+    );
+    // Garbage on the actor's ack key: rejected by its subscriber, the heartbeat's last error.
+    let acks = actor.subscriber(&keys::ack(&net.run, 3)).expect("sub");
+    let evil = monitor.publisher(&keys::ack(&net.run, 3)).expect("pub");
+    assert!(evil.wait_for_subscribers(WAIT).expect("matching"));
+    evil.publish_raw(b"not a message".to_vec()).expect("raw");
+    let deadline = Instant::now() + WAIT;
+    while actor.rejected_count() == 0 {
+        assert!(acks.try_recv().expect("recv").is_none());
+        assert!(Instant::now() < deadline, "not rejected");
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    let s = loop {
+        let s = next("the rejection");
+        if s.detail.contains("rejected a message") {
+            break s;
+        }
+    };
+    assert!(
+        s.detail.contains(&keys::ack(&net.run, 3).to_string()),
+        "{}",
+        s.detail
+    );
+    hb.fail("the run directory is locked by process 12");
+    let s = loop {
+        let s = next("failed");
+        if s.state == ProcessState::Failed {
+            break s;
+        }
+    };
+    assert_eq!(s.detail, "the run directory is locked by process 12");
+}
