@@ -57,6 +57,10 @@ pub struct TrainArgs {
     /// distributed mode, whose processes publish live metrics)
     #[arg(long, value_name = "PORT", conflicts_with = "single_process")]
     pub dashboard: Option<u16>,
+    /// Write no TensorBoard files (runs/<run>/tb/); to measure what they cost (`cargo bench
+    /// --bench watch_cost`) or where nobody reads them
+    #[arg(long)]
+    pub no_tensorboard: bool,
 }
 
 fn resolve(args: &TrainArgs) -> anyhow::Result<Resolved> {
@@ -256,6 +260,7 @@ fn distributed(args: TrainArgs) -> anyhow::Result<()> {
         evaluator: !args.no_evaluator,
         eval_episodes: args.eval_episodes,
         dashboard: args.dashboard,
+        tensorboard: !args.no_tensorboard,
     };
     launch::local::run(launch, &stop)
 }
@@ -408,12 +413,14 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
     );
     let mut bars = Bars::default();
     // TensorBoard files in out/tb/, from metrics.jsonl as it grows (a thread of its own).
-    let board = tboard::Follower::spawn(
-        &out,
-        tboard::Mode::SingleProcess {
-            updates_per_episode: train.rl.batches_per_episode as f64,
-        },
-    );
+    let board = (!args.no_tensorboard).then(|| {
+        tboard::Follower::spawn(
+            &out,
+            tboard::Mode::SingleProcess {
+                updates_per_episode: train.rl.batches_per_episode as f64,
+            },
+        )
+    });
     let (exit, t) = trainer::run(&mut core, &run, &stop, &mut bars)?;
     drop(board);
     timing.add_s("warm_start_s", t.warm_start_s);

@@ -442,3 +442,38 @@ fn a_distributed_run_and_fsrl_watch_write_the_tags_of_its_logs() {
     let rl: Vec<i64> = w["losses/td_loss"].iter().map(|p| p.0).collect();
     assert!(rl.iter().all(|s| (1..=16).contains(s)), "{rl:?}");
 }
+
+/// `fsrl train --no-tensorboard` (what `benches/watch_cost.rs` compares against): no `tb/` in
+/// either mode, and the run is otherwise whole (its training log and report).
+#[test]
+fn no_tensorboard_writes_no_event_files_in_either_mode() {
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = config(dir.path());
+    for (name, mode) in [
+        ("single", &["--single-process"][..]),
+        ("dist", &["--actors", "1", "--no-evaluator"][..]),
+    ] {
+        let out = dir.path().join(name);
+        let o = fsrl()
+            .arg("train")
+            .args(mode)
+            .args(SHORT)
+            .args(["--rl-episodes", "2", "--no-tensorboard", "--config"])
+            .arg(&cfg)
+            .arg("--out")
+            .arg(&out)
+            .output()
+            .unwrap();
+        assert!(
+            o.status.success(),
+            "{name}: {}",
+            String::from_utf8_lossy(&o.stderr)
+        );
+        assert!(
+            out.join("metrics.jsonl").is_file(),
+            "{name}: no training log"
+        );
+        assert!(out.join("report.md").is_file(), "{name}: no report");
+        assert!(!out.join("tb").exists(), "{name}: tb/ written");
+    }
+}

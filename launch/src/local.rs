@@ -180,6 +180,8 @@ pub struct Launch {
     pub eval_episodes: Option<u32>,
     /// Serve the run's live page on this port of 127.0.0.1 (`fsrl dashboard`, a child process).
     pub dashboard: Option<u16>,
+    /// Keep the run's TensorBoard files (`tb/`) in step with its logs and live metrics.
+    pub tensorboard: bool,
 }
 
 /// Runs the processes to the end of the schedule (or until `stop` is set), then the final
@@ -195,6 +197,7 @@ pub fn run(launch: Launch, stop: &AtomicBool) -> anyhow::Result<()> {
         evaluator,
         eval_episodes,
         dashboard,
+        tensorboard,
     } = launch;
     if actors == 0 {
         bail!("a distributed run needs at least one actor");
@@ -332,7 +335,7 @@ pub fn run(launch: Launch, stop: &AtomicBool) -> anyhow::Result<()> {
     let validation_path = out.join("validation.jsonl");
     let validation_start = std::fs::metadata(&validation_path).map_or(0, |m| m.len());
     // TensorBoard files in out/tb/: the logs as they grow, the learner's live-only values.
-    let mut board = tboard::Keeper::open(&out, tboard::Mode::Distributed);
+    let mut board = tensorboard.then(|| tboard::Keeper::open(&out, tboard::Mode::Distributed));
     let total = resolved.file.train.rl.episodes;
     let bar = ProgressBar::with_draw_target(Some(total), ProgressDrawTarget::stderr_with_hz(4));
     bar.set_style(
@@ -355,13 +358,17 @@ pub fn run(launch: Launch, stop: &AtomicBool) -> anyhow::Result<()> {
         if let Some(status) = learner.try_wait()? {
             break status;
         }
-        board.tick();
+        if let Some(b) = &mut board {
+            b.tick();
+        }
         if let Some(msg) = metrics.recv_timeout(Duration::from_millis(200))? {
             let sender = msg.header.sender.to_string();
             let line = serde_json::json!({ "sender": sender, "wall_s": msg.body.wall_time_s, "env_steps": msg.body.env_steps, "episodes": msg.body.episodes, "values": msg.body.values});
             let _ = writeln!(log, "{line}");
             last_values.insert(sender, msg.body.clone());
-            board.live(msg.header.sender, &msg.body);
+            if let Some(b) = &mut board {
+                b.live(msg.header.sender, &msg.body);
+            }
             if msg.header.sender.role == Role::Evaluator {
                 // A point of the learning curve; it reaches metrics.jsonl from the evaluator's
                 // validation.jsonl when the run ends (this live copy is best effort).
@@ -463,7 +470,9 @@ pub fn run(launch: Launch, stop: &AtomicBool) -> anyhow::Result<()> {
     if let Err(e) = copied {
         eprintln!("warning: the learning curve did not reach metrics.jsonl: {e:#}");
     }
-    board.finish();
+    if let Some(b) = &mut board {
+        b.finish();
+    }
     if !learner_exit.success() {
         bail!(
             "processes failed: {} (see {})",
