@@ -42,7 +42,8 @@
 //! | [`keys::ack`] | `fsrl/<run>/ack/<actor>` | learner | that actor | [`Ack`] | reliable | data |
 //! | [`keys::eval_report`] / [`keys::all_eval_reports`] | `fsrl/<run>/eval/<evaluator>` (`.../*`) | evaluator | learner, tools | [`EvalReport`] | reliable | telemetry |
 //! | [`keys::metrics`] / [`keys::all_metrics`] | `fsrl/<run>/metrics/<role>/<index>` (`.../**`) | every process | tools | [`Metrics`] | best effort (dropped under congestion) | telemetry |
-//! | [`keys::status`] / [`keys::all_status`] | `fsrl/<run>/status/<role>/<index>` (`.../**`) | every process | learner, tools | [`Status`] | best effort | telemetry |
+//! | [`keys::status`] / [`keys::all_status`] | `fsrl/<run>/status/<role>/<index>` (`.../**`) | learner, actors, evaluator (heartbeats: state, last error) | tools | [`Status`] | best effort | telemetry |
+//! | [`keys::every_run_metrics`] / [`keys::every_run_status`] | `fsrl/*/metrics/**`, `fsrl/*/status/**` (subscriptions only) | — | tools watching every run (`fsrl dashboard` without `--run`); a message counts only when its header's run is its key's ([`keys::run_of_key`]) | [`Metrics`], [`Status`] | best effort | telemetry |
 //! | [`keys::alive`] / [`keys::all_alive`] | `fsrl/<run>/alive/<role>/<index>/<instance>` (`.../**`) | every process (liveliness token, no payload) | learner, tools | — | join/leave events | telemetry |
 //! | [`keys::serve_act`] | `fsrl/serve/<name>/act` | `fsrl serve` (queryable) | any program (query) | [`serve::ActRequest`] → [`serve::ActReply`] | one reply per query | — |
 //!
