@@ -45,7 +45,8 @@ fn main() -> anyhow::Result<()> {
             let standing: Vec<bool> = env.humans().iter().map(|h| h.standing).collect();
             let human_model: HumanModel = model.train.human_model.into();
             let mut la = Lookahead::new(model.train.gamma, human_model, model.method.human_order())
-                .with_terminal_previews(model.train.terminal_previews);
+                .with_terminal_previews(model.train.terminal_previews)
+                .with_planning(model.train.planning_top_k);
             let mut last: Vec<f32> = Vec::new();
             let mut failure = None;
             let ep = run_episode(

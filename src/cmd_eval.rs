@@ -54,6 +54,11 @@ pub struct EvalArgs {
     /// Extra radius the ORCA robot keeps from humans (CrowdNav: 0 at test time).
     #[arg(long, default_value_t = 0.0)]
     pub safety_space_m: f64,
+    /// Decide with depth-2 planning over the K best first steps, whatever the models were
+    /// trained with (`train.planning_top_k`; 0: the paper's one-step lookahead) [default: each
+    /// model's own].
+    #[arg(long, value_name = "K")]
+    pub planning_top_k: Option<usize>,
 }
 
 /// `--select`: a `train.select` value.
@@ -92,6 +97,12 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
     if args.episodes == 0 {
         bail!("--episodes must be at least 1");
     }
+    if let Some(k) = args.planning_top_k {
+        let max = policy::lookahead::MAX_PLANNING_TOP_K;
+        if k > max {
+            bail!("--planning-top-k must be in 0..={max}, got {k}");
+        }
+    }
     let settings = parse_settings(&args.settings)?;
     let inputs = args
         .inputs
@@ -116,6 +127,7 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
         episodes: args.episodes,
         threads,
         orca_safety_space_m: args.safety_space_m,
+        planning_top_k: args.planning_top_k,
     };
     let mut subjects = Vec::new();
     let per_subject = plan.settings.len() as u64 * args.episodes as u64;

@@ -234,6 +234,30 @@ fn every_command_that_takes_a_checkpoint_takes_a_model_file() {
             .collect()
     };
     assert_eq!(subj["checkpoint_sha256"], sha, "{subj}");
+    // Depth-2 planning (Experiment 21): the report says the decisions were planned, the
+    // paper's one-step reports do not carry the field; out of range is a clear error.
+    assert!(subj.get("planning_top_k").is_none(), "{subj}");
+    let planned = dir.join("ev-k3");
+    ok(&[
+        "eval",
+        s(&model_path),
+        "--settings",
+        "env1-invisible",
+        "--episodes",
+        "3",
+        "--planning-top-k",
+        "3",
+        "--out",
+        s(&planned),
+    ]);
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(planned.join("eval.json")).unwrap()).unwrap();
+    assert_eq!(json["subjects"][0]["planning_top_k"], 3);
+    let e = fails(&["eval", s(&model_path), "--planning-top-k", "82"]);
+    assert!(
+        e.contains("--planning-top-k must be in 0..=81, got 82"),
+        "{e}"
+    );
     let wins = model
         .check
         .iter()

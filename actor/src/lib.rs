@@ -47,7 +47,8 @@ impl Player {
             spec.train.human_model.into(),
             spec.method.human_order(),
         )
-        .with_terminal_previews(spec.train.terminal_previews);
+        .with_terminal_previews(spec.train.terminal_previews)
+        .with_planning(spec.train.planning_top_k);
         Ok(Self {
             env,
             lookahead,

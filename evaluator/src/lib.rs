@@ -20,6 +20,8 @@ pub struct Subject<'a> {
     pub human_model: HumanModel,
     /// Terminal candidates scored by their reward alone (`TrainConfig::terminal_previews`).
     pub terminal_previews: bool,
+    /// Depth-2 planning over this many best first steps (`TrainConfig::planning_top_k`; 0: off).
+    pub planning_top_k: usize,
     /// Extra ORCA radius for the ORCA baseline.
     pub orca_safety_space_m: f64,
 }
@@ -38,6 +40,7 @@ impl<'a> Subject<'a> {
             gamma: train.gamma,
             human_model: train.human_model.into(),
             terminal_previews: train.terminal_previews,
+            planning_top_k: train.planning_top_k,
             orca_safety_space_m: 0.0,
         }
     }
@@ -95,7 +98,8 @@ pub fn evaluate(
                         subject.human_model,
                         subject.method.human_order(),
                     )
-                    .with_terminal_previews(subject.terminal_previews);
+                    .with_terminal_previews(subject.terminal_previews)
+                    .with_planning(subject.planning_top_k);
                     for &(s, k) in jobs.iter().skip(w).step_by(threads) {
                         let env = match &mut envs[s] {
                             Some(env) => env,

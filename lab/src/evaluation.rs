@@ -25,6 +25,8 @@ pub struct EvalPlan {
     pub episodes: u32,
     pub threads: usize,
     pub orca_safety_space_m: f64,
+    /// Overrides every model's `train.planning_top_k` (`fsrl eval --planning-top-k`).
+    pub planning_top_k: Option<usize>,
 }
 
 /// The ORCA robot on `sim` as a report's subject.
@@ -39,6 +41,7 @@ pub fn evaluate_orca(
         gamma: 0.9,
         human_model: policy::lookahead::HumanModel::Orca,
         terminal_previews: false,
+        planning_top_k: 0,
         orca_safety_space_m: plan.orca_safety_space_m,
     };
     let settings = evaluate_subject(
@@ -58,6 +61,7 @@ pub fn evaluate_orca(
         policy_version: 0,
         run_seed: None,
         trained_setting: None,
+        planning_top_k: 0,
         settings,
     })
 }
@@ -93,9 +97,11 @@ impl LoadedPolicy {
         done: &(dyn Fn() + Sync),
     ) -> anyhow::Result<SubjectReport> {
         let model = &self.model;
+        let learned = Subject::learned(model.method, &model.net, &model.train);
         let subject = Subject {
             orca_safety_space_m: plan.orca_safety_space_m,
-            ..Subject::learned(model.method, &model.net, &model.train)
+            planning_top_k: plan.planning_top_k.unwrap_or(learned.planning_top_k),
+            ..learned
         };
         let settings = evaluate_subject(
             subject,
@@ -115,6 +121,7 @@ impl LoadedPolicy {
             policy_version: model.counters.policy_version,
             run_seed: Some(model.run_seed),
             trained_setting: Some(model.setting.name().to_string()),
+            planning_top_k: subject.planning_top_k,
             settings,
         })
     }
@@ -255,6 +262,7 @@ mod tests {
             episodes: 6,
             threads,
             orca_safety_space_m: 0.0,
+            planning_top_k: None,
         };
         let done = AtomicUsize::new(0);
         let one = evaluate_orca(&sim, &plan(1), &|| {

@@ -340,6 +340,7 @@ mod tests {
             checkpoint_sha256: None,
             policy_version: 0,
             run_seed: seed,
+            planning_top_k: 0,
             trained_setting: None,
             settings: results
                 .iter()

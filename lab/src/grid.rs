@@ -639,6 +639,7 @@ mod tests {
             checkpoint_sha256: None,
             policy_version: 1,
             run_seed: Some(0),
+            planning_top_k: 0,
             trained_setting: None,
             settings: settings
                 .iter()

@@ -92,7 +92,8 @@ pub fn play(
             let train = &l.train;
             let human_model: HumanModel = train.human_model.into();
             let mut la = Lookahead::new(train.gamma, human_model, method.human_order())
-                .with_terminal_previews(train.terminal_previews);
+                .with_terminal_previews(train.terminal_previews)
+                .with_planning(train.planning_top_k);
             let net = &l.net;
             run_episode(
                 &mut env,

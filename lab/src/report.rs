@@ -551,7 +551,15 @@ pub struct SubjectReport {
     /// The training run's seed and setting, when known.
     pub run_seed: Option<u64>,
     pub trained_setting: Option<String>,
+    /// Depth-2 planning over this many best first steps decided the episodes (absent: 0, the
+    /// paper's one-step lookahead).
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub planning_top_k: usize,
     pub settings: Vec<SettingReport>,
+}
+
+fn is_zero(n: &usize) -> bool {
+    *n == 0
 }
 
 impl SubjectReport {

@@ -281,7 +281,8 @@ impl Model {
                             self.train.human_model.into(),
                             self.method.human_order(),
                         )
-                        .with_terminal_previews(self.train.terminal_previews);
+                        .with_terminal_previews(self.train.terminal_previews)
+                        .with_planning(self.train.planning_top_k);
                         for (i, &seed) in seeds.iter().enumerate().skip(w).step_by(threads) {
                             let env = match &mut env {
                                 Some(env) => env,

@@ -12,7 +12,7 @@
 //! [`Lookahead::with_terminal_previews`] it is scored `R(s, a)` alone, as the training target
 //! `y = r` treats the last step of an episode (the Env 3 experiment, `docs/REPRODUCTION.md`).
 
-use sim::{evaluate_step, Env, HumanState, Vec2};
+use sim::{evaluate_step, Env, HumanState, RobotState, Vec2};
 
 use crate::joint::{featurize_into, HumanObs, HumanOrder};
 use crate::{PolicyError, Scratch, StateBatch, ValueNet};
@@ -52,7 +52,32 @@ pub struct Lookahead {
     terminal_previews: bool,
     /// Per candidate of the last decision: its step ends the episode.
     terminal: Vec<bool>,
+    /// Depth-2 planning over this many best first steps (0: the paper's one-step lookahead).
+    planning_top_k: usize,
+    /// Per candidate of the last decision: the robot after its step (planning only).
+    robot_next: Vec<RobotState>,
+    plan: PlanBuffers,
 }
+
+/// The second level's buffers (only used with planning).
+#[derive(Debug, Clone, Default)]
+struct PlanBuffers {
+    /// The first steps rescored, best one-step score first.
+    chosen: Vec<usize>,
+    ranked: Vec<(f64, usize)>,
+    /// The humans two steps ahead, as the network sees them.
+    obs: Vec<HumanObs>,
+    velocities: Vec<Vec2>,
+    batch: Vec<f32>,
+    values: Vec<f32>,
+    rewards: Vec<f64>,
+    terminal: Vec<bool>,
+    scratch: Scratch,
+}
+
+/// The most first steps [`Lookahead::with_planning`] rescores (the whole action set of the
+/// paper's robot is 81).
+pub const MAX_PLANNING_TOP_K: usize = 81;
 
 impl Lookahead {
     /// `gamma` is the per-second-at-v_pref discount (0.9); `order` the human order the network
@@ -73,7 +98,18 @@ impl Lookahead {
             discount_last: 0.0,
             terminal_previews: false,
             terminal: Vec::new(),
+            planning_top_k: 0,
+            robot_next: Vec::new(),
+            plan: PlanBuffers::default(),
         }
+    }
+
+    /// Depth-2 planning over the `top_k` best first steps (0: off, the paper). Beyond the paper
+    /// (`train.planning_top_k`, docs/REPRODUCTION.md Experiment 21). Values above the action
+    /// set's size rescore every action.
+    pub fn with_planning(mut self, top_k: usize) -> Self {
+        self.planning_top_k = top_k;
+        self
     }
 
     /// Scores a candidate whose step ends the episode by its reward alone (no bootstrap from
@@ -136,6 +172,7 @@ impl Lookahead {
         self.batch.clear();
         self.rewards.clear();
         self.terminal.clear();
+        self.robot_next.clear();
         for a in 0..n_actions {
             let eval = match self.model {
                 HumanModel::Orca => env.preview(a).expect("index within the action set"),
@@ -156,6 +193,9 @@ impl Lookahead {
             };
             self.rewards.push(eval.reward.total);
             self.terminal.push(eval.outcome.is_terminal());
+            if self.planning_top_k > 0 {
+                self.robot_next.push(eval.robot_next);
+            }
             featurize_into(
                 &eval.robot_next,
                 &self.obs,
@@ -187,6 +227,128 @@ impl Lookahead {
         }
         if !best.value.is_finite() {
             return Err(PolicyError::NonFinite("lookahead values"));
+        }
+        if self.planning_top_k == 0 {
+            return Ok(best);
+        }
+        self.plan_second_step(env, net, discount)
+    }
+
+    /// Depth-2 planning: rescores the `planning_top_k` best first steps of the decision just
+    /// made (`rewards`, `values`, `terminal`, `robot_next` hold its candidates) and returns the
+    /// best rescored one. A first step that ends the episode keeps its one-step score.
+    fn plan_second_step(
+        &mut self,
+        env: &Env,
+        net: &ValueNet,
+        discount: f64,
+    ) -> Result<Decision, PolicyError> {
+        let dt_s = env.config().dt_s;
+        let n_actions = self.rewards.len();
+        let previews = self.terminal_previews;
+        let score = |reward: f64, value: f32, terminal: bool| {
+            if terminal && previews {
+                reward
+            } else {
+                reward + discount * value as f64
+            }
+        };
+        let plan = &mut self.plan;
+        plan.ranked.clear();
+        for a in 0..n_actions {
+            let first = score(self.rewards[a], self.values[a], self.terminal[a]);
+            if first.is_finite() {
+                plan.ranked.push((first, a));
+            }
+        }
+        // Best first; ties to the lower index, as the one-step decision.
+        plan.ranked
+            .sort_by(|x, y| y.0.total_cmp(&x.0).then(x.1.cmp(&y.1)));
+        plan.chosen.clear();
+        plan.chosen.extend(
+            plan.ranked
+                .iter()
+                .take(self.planning_top_k)
+                .map(|&(_, a)| a),
+        );
+
+        // The humans' second step: on at the velocities predicted for the first.
+        plan.velocities.clear();
+        plan.velocities
+            .extend(self.next_humans.iter().map(|h| h.velocity));
+        plan.obs.clear();
+        plan.obs.extend(self.next_humans.iter().map(|h| HumanObs {
+            position: h.position + h.velocity * dt_s,
+            velocity: h.velocity,
+            radius_m: h.radius_m,
+        }));
+
+        plan.batch.clear();
+        plan.rewards.clear();
+        plan.terminal.clear();
+        let mut rows = 0;
+        for &a in &plan.chosen {
+            if self.terminal[a] {
+                continue;
+            }
+            let robot = self.robot_next[a];
+            for b in 0..n_actions {
+                let action = env
+                    .action_set()
+                    .get(b)
+                    .expect("index within the action set");
+                let eval = evaluate_step(
+                    env.config(),
+                    &robot,
+                    action,
+                    &self.next_humans,
+                    &plan.velocities,
+                    env.steps() + 2,
+                );
+                plan.rewards.push(eval.reward.total);
+                plan.terminal.push(eval.outcome.is_terminal());
+                featurize_into(
+                    &eval.robot_next,
+                    &plan.obs,
+                    self.order,
+                    &mut self.order_buf,
+                    &mut plan.batch,
+                );
+                rows += 1;
+            }
+        }
+        plan.values.resize(rows, 0.0);
+        if rows > 0 {
+            let states = StateBatch::new(&plan.batch, rows, plan.obs.len())?;
+            net.values_into(states, &mut plan.scratch, &mut plan.values);
+        }
+
+        let mut best = Decision {
+            action: 0,
+            value: f64::NEG_INFINITY,
+        };
+        let mut row = 0;
+        for &a in &plan.chosen {
+            let value = if self.terminal[a] {
+                score(self.rewards[a], self.values[a], true)
+            } else {
+                let mut second = f64::NEG_INFINITY;
+                for _ in 0..n_actions {
+                    let v = score(plan.rewards[row], plan.values[row], plan.terminal[row]);
+                    if v > second {
+                        second = v;
+                    }
+                    row += 1;
+                }
+                self.rewards[a] + discount * second
+            };
+            // Candidates come best first: strictly greater keeps the better one-step score.
+            if value > best.value {
+                best = Decision { action: a, value };
+            }
+        }
+        if !best.value.is_finite() {
+            return Err(PolicyError::NonFinite("planning values"));
         }
         Ok(best)
     }
@@ -239,5 +401,143 @@ mod tests {
             terminal_seen > 10 && running_seen > 100,
             "{terminal_seen} {running_seen}"
         );
+    }
+
+    /// The depth-2 value of one state written out by hand: every first step `a`, every second
+    /// step `b`, the humans on at constant velocity, `r1 + d·max_b[r2 + d·V(s'')]`.
+    fn depth_two_by_hand(env: &Env, net: &ValueNet, gamma: f64) -> Vec<f64> {
+        let cfg = env.config();
+        let robot = *env.robot();
+        let d = gamma.powf(cfg.dt_s * robot.v_pref_mps);
+        let velocities: Vec<Vec2> = env.humans().iter().map(|h| h.velocity).collect();
+        let ahead = |k: f64| -> Vec<HumanState> {
+            env.humans()
+                .iter()
+                .map(|h| HumanState {
+                    position: h.position + h.velocity * (k * cfg.dt_s),
+                    ..*h
+                })
+                .collect()
+        };
+        let (one, two) = (ahead(1.0), ahead(2.0));
+        let seen: Vec<HumanObs> = two.iter().map(HumanObs::from).collect();
+        let actions = env.action_set();
+        (0..actions.len())
+            .map(|a| {
+                let first = evaluate_step(
+                    cfg,
+                    &robot,
+                    actions.get(a).unwrap(),
+                    env.humans(),
+                    &velocities,
+                    env.steps() + 1,
+                );
+                assert!(!first.outcome.is_terminal(), "pick states far from the end");
+                let mut best = f64::NEG_INFINITY;
+                for b in 0..actions.len() {
+                    let second = evaluate_step(
+                        cfg,
+                        &first.robot_next,
+                        actions.get(b).unwrap(),
+                        &one,
+                        &velocities,
+                        env.steps() + 2,
+                    );
+                    let mut row = Vec::new();
+                    featurize_into(
+                        &second.robot_next,
+                        &seen,
+                        HumanOrder::AsGiven,
+                        &mut Vec::new(),
+                        &mut row,
+                    );
+                    let v = net.values(StateBatch::new(&row, 1, seen.len()).unwrap())[0];
+                    best = best.max(second.reward.total + d * v as f64);
+                }
+                first.reward.total + d * best
+            })
+            .collect()
+    }
+
+    /// Planning over every first step decides the argmax of the depth-2 values written out by
+    /// hand, with that value; planning off (k = 0) decides exactly as the paper's lookahead.
+    /// Fails when `with_planning` is ignored: the one-step decision's value is not the depth-2
+    /// value (and the decisions differ on some of these states).
+    #[test]
+    fn planning_over_every_first_step_takes_the_best_depth_two_value() {
+        let setting: Setting = "env1-invisible".parse().unwrap();
+        let mut env = Env::new(SimConfig::default(), setting, 0).unwrap();
+        let net = ValueNet::new(NetConfig::sarl(), 5).unwrap();
+        let model = HumanModel::ConstantVelocity;
+        let mut paper = Lookahead::new(0.9, model, HumanOrder::AsGiven);
+        let mut off = Lookahead::new(0.9, model, HumanOrder::AsGiven).with_planning(0);
+        let mut all =
+            Lookahead::new(0.9, model, HumanOrder::AsGiven).with_planning(MAX_PLANNING_TOP_K);
+        let (mut states, mut differ) = (0, 0);
+        for seed in 0..3 {
+            env.reset(seed).unwrap();
+            // The first steps of an episode: the goal is metres away, nothing is terminal.
+            for _ in 0..4 {
+                let by_hand = depth_two_by_hand(&env, &net, 0.9);
+                let planned = all.decide(&mut env, &net).unwrap();
+                let best = by_hand.iter().copied().enumerate().fold(
+                    (0, f64::NEG_INFINITY),
+                    |b, (a, v)| if v > b.1 { (a, v) } else { b },
+                );
+                assert_eq!(planned.action, best.0, "seed {seed}");
+                assert!(
+                    (planned.value - best.1).abs() < 1e-9,
+                    "{} vs {}",
+                    planned.value,
+                    best.1
+                );
+                let one_step = paper.decide(&mut env, &net).unwrap();
+                let k0 = off.decide(&mut env, &net).unwrap();
+                assert_eq!(one_step, k0);
+                differ += usize::from(one_step.action != planned.action);
+                states += 1;
+                let action = env.orca_robot_action(0.0);
+                env.step(action).unwrap();
+            }
+        }
+        assert!(differ > 0, "planning changed none of {states} decisions");
+    }
+
+    /// With k first steps rescored, the decision is one of the k best one-step candidates, and
+    /// k = 1 is the one-step decision itself.
+    #[test]
+    fn planning_picks_among_the_k_best_first_steps() {
+        let setting: Setting = "env2-invisible".parse().unwrap();
+        let mut env = Env::new(SimConfig::default(), setting, 0).unwrap();
+        let net = ValueNet::new(NetConfig::sarl(), 10).unwrap();
+        let mut paper = Lookahead::new(0.9, HumanModel::Orca, HumanOrder::AsGiven);
+        let mut one = Lookahead::new(0.9, HumanModel::Orca, HumanOrder::AsGiven).with_planning(1);
+        let mut three = Lookahead::new(0.9, HumanModel::Orca, HumanOrder::AsGiven).with_planning(3);
+        let mut steps = 0;
+        for seed in 0..3 {
+            env.reset(seed).unwrap();
+            while !env.is_done() && steps < 150 {
+                let d1 = one.decide(&mut env, &net).unwrap();
+                let d3 = three.decide(&mut env, &net).unwrap();
+                let d0 = paper.decide(&mut env, &net).unwrap();
+                assert_eq!(d1.action, d0.action);
+                let mut ranked: Vec<(f64, usize)> = paper
+                    .last_values()
+                    .enumerate()
+                    .map(|(a, v)| (v, a))
+                    .collect();
+                ranked.sort_by(|x, y| y.0.total_cmp(&x.0).then(x.1.cmp(&y.1)));
+                assert!(
+                    ranked.iter().take(3).any(|&(_, a)| a == d3.action),
+                    "{} not in {:?}",
+                    d3.action,
+                    &ranked[..3]
+                );
+                let action = env.orca_robot_action(0.0);
+                env.step(action).unwrap();
+                steps += 1;
+            }
+        }
+        assert!(steps > 50);
     }
 }

@@ -215,6 +215,10 @@ fn is_one(n: &u32) -> bool {
     *n == 1
 }
 
+fn is_zero(n: &usize) -> bool {
+    *n == 0
+}
+
 /// Bounds of the adaptive mode's replay ratio, in updates (batches) per accepted RL episode:
 /// below `min` the learner takes no further episode (the actors wait for credits), at `max` it
 /// waits for one instead of training on.
@@ -294,6 +298,13 @@ pub struct TrainConfig {
     /// `r + γ·V(s')` for every candidate, as CrowdNav (the Env 3 experiment,
     /// `docs/REPRODUCTION.md`).
     pub terminal_previews: bool,
+    /// Depth-2 planning at every decision, in training and at test time: the lookahead rescores
+    /// its `planning_top_k` best first steps by the best second step after each
+    /// (`policy::lookahead::Lookahead::with_planning`). Beyond the paper (docs/REPRODUCTION.md,
+    /// Experiment 21); 0 (the paper): one-step lookahead. Not written when 0, so the paper's
+    /// configs, checkpoints and model files keep their bytes.
+    #[serde(skip_serializing_if = "is_zero")]
+    pub planning_top_k: usize,
     pub imitation: ImitationConfig,
     pub rl: RlConfig,
     /// Write a checkpoint every this many RL episodes (0: only at the end).
@@ -358,6 +369,7 @@ impl Default for TrainConfig {
             gamma: 0.9,
             human_model: HumanModelName::Orca,
             terminal_previews: false,
+            planning_top_k: 0,
             imitation: ImitationConfig::default(),
             rl: RlConfig::default(),
             checkpoint_every_episodes: 500,
@@ -427,6 +439,13 @@ impl TrainConfig {
             p.push(format!(
                 "train.rl.n_step must be in 1..={MAX_N_STEP}, got {}",
                 self.rl.n_step
+            ));
+        }
+        if self.planning_top_k > crate::lookahead::MAX_PLANNING_TOP_K {
+            p.push(format!(
+                "train.planning_top_k must be in 0..={}, got {}",
+                crate::lookahead::MAX_PLANNING_TOP_K,
+                self.planning_top_k
             ));
         }
         if self.rl.target_update_episodes == 0 {
@@ -547,6 +566,25 @@ mod tests {
             let p = c.problems();
             assert!(p.len() == 1 && p[0].contains("train.rl.n_step"), "{p:?}");
         }
+    }
+
+    #[test]
+    fn planning_is_read_checked_and_absent_when_off() {
+        let parsed: TrainConfig = toml::from_str("planning_top_k = 3\n").unwrap();
+        assert_eq!(parsed.planning_top_k, 3);
+        assert!(parsed.problems().is_empty());
+        assert!(toml::to_string(&parsed)
+            .unwrap()
+            .contains("planning_top_k = 3"));
+        let text = toml::to_string(&TrainConfig::default()).unwrap();
+        assert!(!text.contains("planning"), "{text}");
+        let mut c = TrainConfig::default();
+        c.planning_top_k = crate::lookahead::MAX_PLANNING_TOP_K + 1;
+        let p = c.problems();
+        assert!(
+            p.len() == 1 && p[0].contains("train.planning_top_k"),
+            "{p:?}"
+        );
     }
 
     #[test]

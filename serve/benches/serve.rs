@@ -2,7 +2,8 @@
 //! evaluator's lookahead on the observed state) and the loop from the last input published to
 //! the command received, over zenoh on loopback (people then odometry, CDR, bridge keys,
 //! `Trigger::Odometry`: the decision starts when the odometry arrives), for 5 and 10 people.
-//! Prints p50/p99 in ms. `cargo bench --workspace --bench serve`.
+//! Prints p50/p99 in ms, and one decision with depth-2 planning (`FSRL_SERVE_PLANNING_K`,
+//! default 3) beside the model's own, as ratios. `cargo bench --workspace --bench serve`.
 
 use std::path::Path;
 use std::sync::mpsc;
@@ -45,8 +46,15 @@ fn states(people: usize) -> Vec<Env> {
     out
 }
 
-fn decisions(people: usize) {
-    let mut served = ServedPolicy::load(Path::new(MODEL), None).unwrap();
+/// One decision's p50 and p99 (ms) over the states with `people` humans; `planning`: decide
+/// with depth-2 planning over that many first steps instead of the model's own setting.
+fn decisions(people: usize, planning: Option<usize>) -> (f64, f64) {
+    let (mut model, _) = learner::model::load_policy(Path::new(MODEL)).unwrap();
+    if let Some(k) = planning {
+        model.train.planning_top_k = k;
+    }
+    let k = model.train.planning_top_k;
+    let mut served = ServedPolicy::from_model(model, None).unwrap();
     let obs: Vec<Observation> = states(people).iter().map(Observation::of_env).collect();
     for o in obs.iter().take(20) {
         served.decide(o).unwrap();
@@ -59,12 +67,12 @@ fn decisions(people: usize) {
             t.elapsed().as_secs_f64() * 1e3
         })
         .collect();
+    let (p50, p99) = (pct(&mut ms, 0.5), pct(&mut ms, 0.99));
     println!(
-        "decision, {people:>2} people: p50 {:.3} ms, p99 {:.3} ms ({} states)",
-        pct(&mut ms, 0.5),
-        pct(&mut ms, 0.99),
+        "decision, {people:>2} people, planning top-k {k}: p50 {p50:.3} ms, p99 {p99:.3} ms ({} states)",
         ms.len()
     );
+    (p50, p99)
 }
 
 fn free_port() -> u16 {
@@ -189,8 +197,28 @@ fn main() {
     if !std::env::args().any(|a| a == "--bench") {
         return;
     }
+    // Depth-2 planning arms (Experiment 21), beside the model's own decision in the same run:
+    // FSRL_SERVE_PLANNING_K, comma-separated top-k values (default 3; empty: none).
+    let planning: Vec<usize> = std::env::var("FSRL_SERVE_PLANNING_K")
+        .unwrap_or_else(|_| "3".into())
+        .split(',')
+        .filter(|k| !k.trim().is_empty())
+        .map(|k| {
+            k.trim()
+                .parse()
+                .expect("FSRL_SERVE_PLANNING_K: top-k values")
+        })
+        .collect();
     for people in [5, 10] {
-        decisions(people);
+        let own = decisions(people, None);
+        for &k in &planning {
+            let arm = decisions(people, Some(k));
+            println!(
+                "  planning top-k {k} / own, {people:>2} people: p50 {:.2}x, p99 {:.2}x",
+                arm.0 / own.0,
+                arm.1 / own.1
+            );
+        }
     }
     for people in [5, 10] {
         input_to_command(people);

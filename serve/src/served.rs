@@ -221,7 +221,8 @@ impl ServedPolicy {
             model.train.human_model.into(),
             model.method.human_order(),
         )
-        .with_terminal_previews(model.train.terminal_previews);
+        .with_terminal_previews(model.train.terminal_previews)
+        .with_planning(model.train.planning_top_k);
         let actions = ActionSet::for_config(&cfg);
         Ok(Self {
             model,
@@ -450,7 +451,8 @@ mod tests {
             m.train.human_model.into(),
             m.method.human_order(),
         )
-        .with_terminal_previews(m.train.terminal_previews);
+        .with_terminal_previews(m.train.terminal_previews)
+        .with_planning(m.train.planning_top_k);
         let mut steps = 0;
         for seed in 1000..1003 {
             env.reset(seed).unwrap();
