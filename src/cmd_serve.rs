@@ -114,6 +114,11 @@ pub struct ServeArgs {
     /// Whether people react to the robot [default: as in the model's trained setting].
     #[arg(long)]
     pub robot_visible: Option<bool>,
+    /// Decide with depth-2 planning over the K best first steps (beyond the paper: safer and
+    /// faster in docs/REPRODUCTION.md Experiment 21, about 1 + K times the decision's work;
+    /// 0: the paper's one-step lookahead) [default: the model's own `train.planning_top_k`].
+    #[arg(long, value_name = "K")]
+    pub planning_top_k: Option<usize>,
     #[command(flatten)]
     pub ros: RosArgs,
 }
@@ -145,6 +150,7 @@ pub fn run(a: ServeArgs) -> anyhow::Result<()> {
         max_people: a.max_people,
         decision_budget_s: a.decision_budget_s,
         robot_visible: a.robot_visible,
+        planning_top_k: a.planning_top_k,
         ..serve::ServeOptions::new(a.model)
     };
     // Every bad number in one line, before anything is opened, loaded or installed.

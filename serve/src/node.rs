@@ -99,6 +99,9 @@ pub struct ServeOptions {
     /// Longest a decision may take, in seconds; default half the period.
     pub decision_budget_s: Option<f64>,
     pub robot_visible: Option<bool>,
+    /// Depth-2 planning over this many best first steps, whatever the model was trained with
+    /// (`train.planning_top_k`; 0: the paper's one-step lookahead); default the model's own.
+    pub planning_top_k: Option<usize>,
     pub zenoh: transport::ZenohConfig,
 }
 
@@ -134,6 +137,7 @@ impl ServeOptions {
             max_people: DEFAULT_MAX_PEOPLE,
             decision_budget_s: None,
             robot_visible: None,
+            planning_top_k: None,
             zenoh: transport::ZenohConfig::default(),
         }
     }
@@ -173,6 +177,12 @@ impl ServeOptions {
                 "--max-people {}: must be at least 1 and at most {max}",
                 self.max_people
             ));
+        }
+        if let Some(k) = self.planning_top_k {
+            let max = policy::lookahead::MAX_PLANNING_TOP_K;
+            if k > max {
+                problems.push(format!("--planning-top-k {k}: must be at most {max}"));
+            }
         }
         problems.extend(self.limits.check());
         if let Err(e) = self.topics.check() {
@@ -739,7 +749,10 @@ pub fn run(
     let mut node = RosNode::open(&opts.zenoh, opts.style.clone(), &opts.name)?;
     let mut cmd = node.command_publisher::<Twist>(&opts.topics.cmd_vel)?;
     let mut policy = match ServedPolicy::load(&opts.model, opts.robot_visible) {
-        Ok(p) => p,
+        Ok(p) => match opts.planning_top_k {
+            Some(k) => p.with_planning_top_k(k),
+            None => p,
+        },
         Err(e) => {
             let reason = StopReason::ModelNotLoaded(e.to_string());
             tracing::error!("zero command: {reason}");
@@ -1012,12 +1025,14 @@ mod tests {
         o.period_s = Some(-0.25);
         o.limits.max_turn_rate_radps = Some(f64::NAN);
         o.max_people = 0;
+        o.planning_top_k = Some(policy::lookahead::MAX_PLANNING_TOP_K + 1);
         let e = o.check().unwrap_err().to_string();
         for flag in [
             "--stale-periods inf",
             "--period-s -0.25",
             "--max-turn-rate-radps NaN",
             "--max-people 0",
+            "--planning-top-k 82",
         ] {
             assert!(e.contains(flag), "{flag}: {e}");
         }

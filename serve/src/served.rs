@@ -206,6 +206,14 @@ impl ServedPolicy {
         Self::from_model(model, robot_visible)
     }
 
+    /// Decides with depth-2 planning over the `top_k` best first steps (0: the paper's one-step
+    /// lookahead), whatever the model was trained with; [`ServedPolicy::model`] then says so.
+    pub fn with_planning_top_k(mut self, top_k: usize) -> Self {
+        self.model.train.planning_top_k = top_k;
+        self.lookahead = self.lookahead.with_planning(top_k);
+        self
+    }
+
     pub fn from_model(model: Model, robot_visible: Option<bool>) -> Result<Self, PolicyFailure> {
         if model.method.net().is_none() {
             return Err(PolicyFailure::NoNetwork(model.method.to_string()));
@@ -467,6 +475,43 @@ mod tests {
         }
         assert!(steps > 30);
         let _ = (HumanOrder::AsGiven, HumanModel::Orca);
+    }
+
+    /// `fsrl serve --planning-top-k`: the served decision is the evaluator's planned one, and
+    /// planning changes some decisions of the model's own (one-step) lookahead.
+    #[test]
+    fn served_planning_decides_as_the_evaluators_planning() {
+        let m = model();
+        assert_eq!(m.train.planning_top_k, 0);
+        let mut served = ServedPolicy::from_model(m.clone(), None)
+            .unwrap()
+            .with_planning_top_k(3);
+        assert_eq!(served.model().train.planning_top_k, 3);
+        let cfg = m.method_sim();
+        let mut env = Env::new(cfg, m.setting, 1000).unwrap();
+        let new = || {
+            Lookahead::new(
+                m.train.gamma,
+                m.train.human_model.into(),
+                m.method.human_order(),
+            )
+            .with_terminal_previews(m.train.terminal_previews)
+        };
+        let (mut planned, mut one_step) = (new().with_planning(3), new());
+        let (mut steps, mut differ) = (0, 0);
+        for seed in 1000..1002 {
+            env.reset(seed).unwrap();
+            while !env.is_done() {
+                let want = planned.decide(&mut env, &m.net).unwrap();
+                let plain = one_step.decide(&mut env, &m.net).unwrap();
+                let got = served.decide(&Observation::of_env(&env)).unwrap();
+                assert_eq!((got.action, got.value), (want.action, want.value));
+                differ += usize::from(plain.action != want.action);
+                env.step(want.action).unwrap();
+                steps += 1;
+            }
+        }
+        assert!(steps > 20 && differ > 0, "{differ} of {steps}");
     }
 
     #[test]
