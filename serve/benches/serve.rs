@@ -3,7 +3,7 @@
 //! the command received, over zenoh on loopback (people then odometry, CDR, bridge keys,
 //! `Trigger::Odometry`: the decision starts when the odometry arrives), for 5 and 10 people.
 //! Prints p50/p99 in ms, and one decision with depth-2 planning (`FSRL_SERVE_PLANNING_K`,
-//! default 3) beside the model's own, as ratios. `cargo bench --workspace --bench serve`.
+//! default 3 and 8) beside the model's own, as ratios. `cargo bench --workspace --bench serve`.
 
 use std::path::Path;
 use std::sync::mpsc;
@@ -198,9 +198,9 @@ fn main() {
         return;
     }
     // Depth-2 planning arms (Experiment 21), beside the model's own decision in the same run:
-    // FSRL_SERVE_PLANNING_K, comma-separated top-k values (default 3; empty: none).
+    // FSRL_SERVE_PLANNING_K, comma-separated top-k values (default 3,8; empty: none).
     let planning: Vec<usize> = std::env::var("FSRL_SERVE_PLANNING_K")
-        .unwrap_or_else(|_| "3".into())
+        .unwrap_or_else(|_| "3,8".into())
         .split(',')
         .filter(|k| !k.trim().is_empty())
         .map(|k| {
