@@ -119,6 +119,10 @@ pub struct ServeArgs {
     /// 0: the paper's one-step lookahead) [default: the model's own `train.planning_top_k`].
     #[arg(long, value_name = "K")]
     pub planning_top_k: Option<usize>,
+    /// Threads one decision's network work is split over (the decision is the same; worth it
+    /// with --planning-top-k) [default: every core, at most 4].
+    #[arg(long)]
+    pub threads: Option<usize>,
     #[command(flatten)]
     pub ros: RosArgs,
 }
@@ -151,6 +155,11 @@ pub fn run(a: ServeArgs) -> anyhow::Result<()> {
         decision_budget_s: a.decision_budget_s,
         robot_visible: a.robot_visible,
         planning_top_k: a.planning_top_k,
+        threads: a.threads.unwrap_or_else(|| {
+            std::thread::available_parallelism()
+                .map_or(1, |n| n.get())
+                .min(4)
+        }),
         ..serve::ServeOptions::new(a.model)
     };
     // Every bad number in one line, before anything is opened, loaded or installed.

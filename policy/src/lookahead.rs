@@ -57,6 +57,10 @@ pub struct Lookahead {
     /// Per candidate of the last decision: the robot after its step (planning only).
     robot_next: Vec<RobotState>,
     plan: PlanBuffers,
+    /// The network's batches split over this many threads (1: the caller's alone).
+    threads: usize,
+    /// One scratch per thread when `threads > 1`.
+    split: Vec<Scratch>,
 }
 
 /// The second level's buffers (only used with planning).
@@ -101,6 +105,8 @@ impl Lookahead {
             planning_top_k: 0,
             robot_next: Vec::new(),
             plan: PlanBuffers::default(),
+            threads: 1,
+            split: Vec::new(),
         }
     }
 
@@ -109,6 +115,21 @@ impl Lookahead {
     /// set's size rescore every action.
     pub fn with_planning(mut self, top_k: usize) -> Self {
         self.planning_top_k = top_k;
+        self
+    }
+
+    /// Splits each decision's network batches over `threads` threads (at least 1; the values,
+    /// and so the decisions, are the single-threaded ones bit for bit:
+    /// `ValueNet::values_split`). For one decision at a time (`fsrl serve`), where planning's
+    /// larger batches leave cores idle; the evaluator and actors already use every core.
+    /// [`Lookahead::attention`] is then `None`.
+    pub fn with_threads(mut self, threads: usize) -> Self {
+        self.threads = threads.max(1);
+        self.split = if self.threads > 1 {
+            vec![Scratch::default(); self.threads]
+        } else {
+            Vec::new()
+        };
         self
     }
 
@@ -131,6 +152,9 @@ impl Lookahead {
 
     /// The attention weights `(A, N)` of the last decision's candidates (SARL only).
     pub fn attention<'s>(&'s self, net: &ValueNet) -> Option<&'s [f32]> {
+        if self.threads > 1 {
+            return None;
+        }
         net.attention(&self.scratch)
     }
 
@@ -206,7 +230,11 @@ impl Lookahead {
         }
         let states = StateBatch::new(&self.batch, n_actions, self.obs.len())?;
         self.values.resize(n_actions, 0.0);
-        net.values_into(states, &mut self.scratch, &mut self.values);
+        if self.threads > 1 {
+            net.values_split(states, &mut self.split, &mut self.values);
+        } else {
+            net.values_into(states, &mut self.scratch, &mut self.values);
+        }
 
         let mut best = Decision {
             action: 0,
@@ -320,7 +348,11 @@ impl Lookahead {
         plan.values.resize(rows, 0.0);
         if rows > 0 {
             let states = StateBatch::new(&plan.batch, rows, plan.obs.len())?;
-            net.values_into(states, &mut plan.scratch, &mut plan.values);
+            if self.threads > 1 {
+                net.values_split(states, &mut self.split, &mut plan.values);
+            } else {
+                net.values_into(states, &mut plan.scratch, &mut plan.values);
+            }
         }
 
         let mut best = Decision {
@@ -501,6 +533,31 @@ mod tests {
             }
         }
         assert!(differ > 0, "planning changed none of {states} decisions");
+    }
+
+    /// Threads change nothing a decision returns, with planning or without.
+    #[test]
+    fn threads_decide_exactly_as_one() {
+        let setting: Setting = "env2-invisible".parse().unwrap();
+        let mut env = Env::new(SimConfig::default(), setting, 0).unwrap();
+        let net = ValueNet::new(NetConfig::sarl(), 10).unwrap();
+        for k in [0, 3] {
+            let new =
+                || Lookahead::new(0.9, HumanModel::Orca, HumanOrder::AsGiven).with_planning(k);
+            let (mut one, mut two) = (new(), new().with_threads(2));
+            env.reset(1).unwrap();
+            let mut steps = 0;
+            while !env.is_done() && steps < 40 {
+                let a = one.decide(&mut env, &net).unwrap();
+                let b = two.decide(&mut env, &net).unwrap();
+                assert_eq!(a, b, "top-k {k}, step {steps}");
+                assert!(two.attention(&net).is_none() && one.attention(&net).is_some());
+                let action = env.orca_robot_action(0.0);
+                env.step(action).unwrap();
+                steps += 1;
+            }
+            assert!(steps > 10);
+        }
     }
 
     /// With k first steps rescored, the decision is one of the k best one-step candidates, and

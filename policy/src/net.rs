@@ -8,6 +8,9 @@ use crate::config::{NetConfig, NetIndex, NetKind, ParamLayout};
 use crate::fast::{self, Scratch};
 use crate::{PolicyError, FEATURE_DIM, ROBOT_DIM};
 
+/// Fewest rows each thread of [`ValueNet::values_split`] takes (below, one thread is faster).
+pub const MIN_ROWS_PER_THREAD: usize = 32;
+
 /// A borrowed batch of joint states: `batch` samples × `humans` rows × 13 features, row-major
 /// and contiguous (`data[(sample · humans + human) · 13 + feature]`).
 ///
@@ -182,6 +185,57 @@ impl ValueNet {
         }
     }
 
+    /// [`ValueNet::values_into`] with the batch split into `scratches.len()` consecutive parts,
+    /// one per thread (the first on the caller's). A row's value does not depend on the rows
+    /// beside it, so the values are the single-threaded ones bit for bit
+    /// (`tests::split_values_are_the_single_threaded_ones`). Small batches stay on one thread.
+    pub fn values_split(&self, states: StateBatch<'_>, scratches: &mut [Scratch], out: &mut [f32]) {
+        assert_eq!(
+            out.len(),
+            states.batch(),
+            "output length must equal the batch size"
+        );
+        let parts = scratches
+            .len()
+            .min(states.batch() / MIN_ROWS_PER_THREAD)
+            .max(1);
+        if parts <= 1 {
+            self.values_into(states, &mut scratches[0], out);
+            return;
+        }
+        let (batch, humans) = (states.batch(), states.humans());
+        let stride = humans * FEATURE_DIM;
+        let per = batch.div_ceil(parts);
+        std::thread::scope(|scope| {
+            let mut data = states.data();
+            let mut rest = &mut out[..];
+            let mut first = None;
+            for (i, scratch) in scratches.iter_mut().take(parts).enumerate() {
+                let rows = per.min(rest.len());
+                if rows == 0 {
+                    break;
+                }
+                let (chunk, tail) = data.split_at(rows * stride);
+                let (values, more) = std::mem::take(&mut rest).split_at_mut(rows);
+                data = tail;
+                rest = more;
+                let part = StateBatch {
+                    data: chunk,
+                    batch: rows,
+                    humans,
+                };
+                if i == 0 {
+                    first = Some((part, scratch, values));
+                } else {
+                    scope.spawn(move || self.values_into(part, scratch, values));
+                }
+            }
+            if let Some((part, scratch, values)) = first {
+                self.values_into(part, scratch, values);
+            }
+        });
+    }
+
     /// SARL's attention weights from the last [`ValueNet::values_into`] with this `scratch`:
     /// `(B, N)` row-major, each row sums to one. `None` for LSTM-RL.
     pub fn attention<'s>(&self, scratch: &'s Scratch) -> Option<&'s [f32]> {
@@ -204,4 +258,35 @@ fn check_params(kind: NetKind, expected: usize, params: &[f32]) -> Result<(), Po
         return Err(PolicyError::NonFinite("network parameters"));
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::NetConfig;
+
+    /// Split over 2 to 4 threads, every value equals the single-threaded one bit for bit, for
+    /// both networks and batch sizes around the split points; fewer rows than
+    /// `MIN_ROWS_PER_THREAD` per thread stay on one.
+    #[test]
+    fn split_values_are_the_single_threaded_ones() {
+        for config in [NetConfig::sarl(), NetConfig::lstm_rl()] {
+            let humans: usize = 5;
+            let net = ValueNet::new(config, 7).unwrap();
+            for batch in [1, 31, 64, 65, 204, 459] {
+                let data: Vec<f32> = (0..batch * humans * FEATURE_DIM)
+                    .map(|i| ((i * 7919 % 1000) as f32 / 500.0) - 1.0)
+                    .collect();
+                let states = StateBatch::new(&data, batch, humans).unwrap();
+                let want = net.values(states);
+                for threads in 2..=4 {
+                    let mut scratches = vec![Scratch::default(); threads];
+                    let mut got = vec![f32::NAN; batch];
+                    net.values_split(states, &mut scratches, &mut got);
+                    let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+                    assert_eq!(bits(&got), bits(&want), "batch {batch}, {threads} threads");
+                }
+            }
+        }
+    }
 }

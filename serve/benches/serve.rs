@@ -48,13 +48,15 @@ fn states(people: usize) -> Vec<Env> {
 
 /// One decision's p50 and p99 (ms) over the states with `people` humans; `planning`: decide
 /// with depth-2 planning over that many first steps instead of the model's own setting.
-fn decisions(people: usize, planning: Option<usize>) -> (f64, f64) {
+fn decisions(people: usize, planning: Option<usize>, threads: usize) -> (f64, f64) {
     let (mut model, _) = learner::model::load_policy(Path::new(MODEL)).unwrap();
     if let Some(k) = planning {
         model.train.planning_top_k = k;
     }
     let k = model.train.planning_top_k;
-    let mut served = ServedPolicy::from_model(model, None).unwrap();
+    let mut served = ServedPolicy::from_model(model, None)
+        .unwrap()
+        .with_threads(threads);
     let obs: Vec<Observation> = states(people).iter().map(Observation::of_env).collect();
     for o in obs.iter().take(20) {
         served.decide(o).unwrap();
@@ -69,7 +71,7 @@ fn decisions(people: usize, planning: Option<usize>) -> (f64, f64) {
         .collect();
     let (p50, p99) = (pct(&mut ms, 0.5), pct(&mut ms, 0.99));
     println!(
-        "decision, {people:>2} people, planning top-k {k}: p50 {p50:.3} ms, p99 {p99:.3} ms ({} states)",
+        "decision, {people:>2} people, planning top-k {k}, {threads} thread(s): p50 {p50:.3} ms, p99 {p99:.3} ms ({} states)",
         ms.len()
     );
     (p50, p99)
@@ -209,15 +211,20 @@ fn main() {
                 .expect("FSRL_SERVE_PLANNING_K: top-k values")
         })
         .collect();
+    // Each planning arm on one thread and split over every core (`fsrl serve --threads`).
+    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+    let threads: Vec<usize> = if cores > 1 { vec![1, cores] } else { vec![1] };
     for people in [5, 10] {
-        let own = decisions(people, None);
+        let own = decisions(people, None, 1);
         for &k in &planning {
-            let arm = decisions(people, Some(k));
-            println!(
-                "  planning top-k {k} / own, {people:>2} people: p50 {:.2}x, p99 {:.2}x",
-                arm.0 / own.0,
-                arm.1 / own.1
-            );
+            for &t in &threads {
+                let arm = decisions(people, Some(k), t);
+                println!(
+                    "  planning top-k {k}, {t} thread(s) / own, {people:>2} people: p50 {:.2}x, p99 {:.2}x",
+                    arm.0 / own.0,
+                    arm.1 / own.1
+                );
+            }
         }
     }
     for people in [5, 10] {

@@ -102,9 +102,13 @@ pub struct ServeOptions {
     /// Depth-2 planning over this many best first steps, whatever the model was trained with
     /// (`train.planning_top_k`; 0: the paper's one-step lookahead); default the model's own.
     pub planning_top_k: Option<usize>,
+    /// Threads of one decision's network batches (1: the loop's own; more pay with planning).
+    pub threads: usize,
     pub zenoh: transport::ZenohConfig,
 }
 
+/// Most threads one decision may use.
+pub const MAX_THREADS: usize = 64;
 /// Longest control period accepted, in seconds.
 pub const MAX_PERIOD_S: f64 = 60.0;
 /// Most periods the staleness limit may span.
@@ -138,6 +142,7 @@ impl ServeOptions {
             decision_budget_s: None,
             robot_visible: None,
             planning_top_k: None,
+            threads: 1,
             zenoh: transport::ZenohConfig::default(),
         }
     }
@@ -176,6 +181,12 @@ impl ServeOptions {
             problems.push(format!(
                 "--max-people {}: must be at least 1 and at most {max}",
                 self.max_people
+            ));
+        }
+        if !(1..=MAX_THREADS).contains(&self.threads) {
+            problems.push(format!(
+                "--threads {}: must be at least 1 and at most {MAX_THREADS}",
+                self.threads
             ));
         }
         if let Some(k) = self.planning_top_k {
@@ -752,7 +763,8 @@ pub fn run(
         Ok(p) => match opts.planning_top_k {
             Some(k) => p.with_planning_top_k(k),
             None => p,
-        },
+        }
+        .with_threads(opts.threads),
         Err(e) => {
             let reason = StopReason::ModelNotLoaded(e.to_string());
             tracing::error!("zero command: {reason}");
@@ -774,7 +786,8 @@ pub fn run(
     let mut control = Controller::new(safety, opts.people_format);
 
     let queries = Arc::new(QueryQueue::default());
-    let worker_policy = ServedPolicy::from_model(policy.model().clone(), opts.robot_visible)?;
+    let worker_policy = ServedPolicy::from_model(policy.model().clone(), opts.robot_visible)?
+        .with_threads(opts.threads);
     let worker = {
         let queries = queries.clone();
         let (limits, max_people) = (opts.limits, opts.max_people);
@@ -1026,6 +1039,7 @@ mod tests {
         o.limits.max_turn_rate_radps = Some(f64::NAN);
         o.max_people = 0;
         o.planning_top_k = Some(policy::lookahead::MAX_PLANNING_TOP_K + 1);
+        o.threads = 0;
         let e = o.check().unwrap_err().to_string();
         for flag in [
             "--stale-periods inf",
@@ -1033,6 +1047,7 @@ mod tests {
             "--max-turn-rate-radps NaN",
             "--max-people 0",
             "--planning-top-k 82",
+            "--threads 0",
         ] {
             assert!(e.contains(flag), "{flag}: {e}");
         }

@@ -214,6 +214,13 @@ impl ServedPolicy {
         self
     }
 
+    /// Splits each decision's network batches over `threads` threads (the decisions are the
+    /// same bit for bit; `Lookahead::with_threads`).
+    pub fn with_threads(mut self, threads: usize) -> Self {
+        self.lookahead = self.lookahead.with_threads(threads);
+        self
+    }
+
     pub fn from_model(model: Model, robot_visible: Option<bool>) -> Result<Self, PolicyFailure> {
         if model.method.net().is_none() {
             return Err(PolicyFailure::NoNetwork(model.method.to_string()));
