@@ -448,8 +448,10 @@ fn the_readme_results_are_the_reports_numbers() {
                 .collect()
         })
         .collect();
-    assert_eq!(rows.len(), 24, "six settings × four methods");
+    assert_eq!(rows.len(), 30, "six settings × four methods and FSRL planned");
     let grid = read("docs/results/grid-compare/compare.md");
+    // Beyond the paper: the shipped FSRL models deciding with depth-2 planning (Experiment 23).
+    let planned = read("docs/results/planning/compare-k8-six/compare.md");
     let six = read("docs/pictures/eval.md");
     let mut setting = String::new();
     for row in &rows {
@@ -469,6 +471,7 @@ fn the_readme_results_are_the_reports_numbers() {
             "LSTM-RL" => (&grid, "lstm-rl", "LSTM-RL (paper)"),
             "SARL" => (&grid, "sarl", "SARL (paper)"),
             "FSRL" => (&grid, "fsrl", "FSRL (paper)"),
+            "FSRL, planning k = 8 †" => (&planned, "fsrl", "FSRL (paper)"),
             other => panic!("unknown method {other}"),
         };
         let succ = table(report, "Succ.");
