@@ -448,7 +448,11 @@ fn the_readme_results_are_the_reports_numbers() {
                 .collect()
         })
         .collect();
-    assert_eq!(rows.len(), 30, "six settings × four methods and FSRL planned");
+    assert_eq!(
+        rows.len(),
+        30,
+        "six settings × four methods and FSRL planned"
+    );
     let grid = read("docs/results/grid-compare/compare.md");
     // Beyond the paper: the shipped FSRL models deciding with depth-2 planning (Experiment 23).
     let planned = read("docs/results/planning/compare-k8-six/compare.md");
