@@ -427,6 +427,23 @@ pub fn run(launch: Launch, stop: &AtomicBool) -> anyhow::Result<()> {
         }
     };
     bar.finish_and_clear();
+    // Metrics still queued or in flight when the learner exited (under load its last messages,
+    // or all of a short run's, can be): take them before the summary reads each process's
+    // last, so that run.json always has the learner's figures. Until 100 ms pass without one,
+    // at most 2 s.
+    let drain_until = Instant::now() + Duration::from_secs(2);
+    while Instant::now() < drain_until {
+        let Some(msg) = metrics.recv_timeout(Duration::from_millis(100))? else {
+            break;
+        };
+        let sender = msg.header.sender.to_string();
+        let line = serde_json::json!({ "sender": sender, "wall_s": msg.body.wall_time_s, "env_steps": msg.body.env_steps, "episodes": msg.body.episodes, "values": msg.body.values});
+        let _ = writeln!(log, "{line}");
+        if let Some(b) = &mut board {
+            b.live(msg.header.sender, &msg.body);
+        }
+        last_values.insert(sender, msg.body);
+    }
     // The learner is done: actors and the evaluator finish on their own (the evaluator after the
     // final evaluation); after a stop, they are told to stop too.
     let interrupted = stop.load(Ordering::SeqCst) || !learner_exit.success();
