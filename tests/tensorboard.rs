@@ -398,6 +398,20 @@ fn a_distributed_run_and_fsrl_watch_write_the_tags_of_its_logs() {
         watch.0.try_wait().unwrap().is_none(),
         "fsrl watch stopped early"
     );
+    // Under a loaded machine fsrl watch may still be taking the run's last messages (an
+    // actor's few of a short run): give it until every tag is in its files, at most 20 s.
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(20);
+    while std::time::Instant::now() < deadline {
+        let w = tensorboard_scalars(&watched);
+        if TAGS
+            .iter()
+            .filter(|t| !t.starts_with("losses/imitation"))
+            .all(|t| w.get(*t).is_some_and(|p| !p.is_empty()))
+        {
+            break;
+        }
+        std::thread::sleep(std::time::Duration::from_millis(500));
+    }
     watch.0.kill().unwrap();
     watch.0.wait().unwrap();
 
