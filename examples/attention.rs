@@ -13,7 +13,6 @@
 
 use anyhow::{bail, Context};
 use learner::model::load_policy;
-use policy::lookahead::{HumanModel, Lookahead};
 use sim::{run_episode, Env, Outcome};
 
 /// Below this weight a human counts as ignored.
@@ -43,10 +42,7 @@ fn main() -> anyhow::Result<()> {
         for seed in model.train.test_seed_start..model.train.test_seed_start + episodes {
             let mut env = Env::new(model.sim.clone(), model.setting, seed)?;
             let standing: Vec<bool> = env.humans().iter().map(|h| h.standing).collect();
-            let human_model: HumanModel = model.train.human_model.into();
-            let mut la = Lookahead::new(model.train.gamma, human_model, model.method.human_order())
-                .with_terminal_previews(model.train.terminal_previews)
-                .with_planning(model.train.planning_top_k);
+            let mut la = model.train.lookahead(model.method.human_order());
             let mut last: Vec<f32> = Vec::new();
             let mut failure = None;
             let ep = run_episode(

@@ -59,6 +59,10 @@ pub struct EvalArgs {
     /// model's own].
     #[arg(long, value_name = "K")]
     pub planning_top_k: Option<usize>,
+    /// When planning, try the M best one-step actions as second steps (0: every action),
+    /// whatever the models say (`train.planning_breadth`) [default: each model's own].
+    #[arg(long, value_name = "M")]
+    pub planning_breadth: Option<usize>,
 }
 
 /// `--select`: a `train.select` value.
@@ -97,10 +101,13 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
     if args.episodes == 0 {
         bail!("--episodes must be at least 1");
     }
-    if let Some(k) = args.planning_top_k {
-        let max = policy::lookahead::MAX_PLANNING_TOP_K;
-        if k > max {
-            bail!("--planning-top-k must be in 0..={max}, got {k}");
+    let max = policy::lookahead::MAX_PLANNING_TOP_K;
+    for (flag, v) in [
+        ("--planning-top-k", args.planning_top_k),
+        ("--planning-breadth", args.planning_breadth),
+    ] {
+        if let Some(v) = v.filter(|&v| v > max) {
+            bail!("{flag} must be in 0..={max}, got {v}");
         }
     }
     let settings = parse_settings(&args.settings)?;
@@ -128,6 +135,7 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
         threads,
         orca_safety_space_m: args.safety_space_m,
         planning_top_k: args.planning_top_k,
+        planning_breadth: args.planning_breadth,
     };
     let mut subjects = Vec::new();
     let per_subject = plan.settings.len() as u64 * args.episodes as u64;

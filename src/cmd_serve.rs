@@ -119,6 +119,10 @@ pub struct ServeArgs {
     /// 0: the paper's one-step lookahead) [default: the model's own `train.planning_top_k`].
     #[arg(long, value_name = "K")]
     pub planning_top_k: Option<usize>,
+    /// When planning, try the M best one-step actions as second steps (0: every action; fewer
+    /// cost less) [default: the model's own `train.planning_breadth`].
+    #[arg(long, value_name = "M")]
+    pub planning_breadth: Option<usize>,
     /// Threads one decision's network work is split over (the decision is the same; worth it
     /// with --planning-top-k) [default: every core, at most 4].
     #[arg(long)]
@@ -155,6 +159,7 @@ pub fn run(a: ServeArgs) -> anyhow::Result<()> {
         decision_budget_s: a.decision_budget_s,
         robot_visible: a.robot_visible,
         planning_top_k: a.planning_top_k,
+        planning_breadth: a.planning_breadth,
         threads: a.threads.unwrap_or_else(|| {
             std::thread::available_parallelism()
                 .map_or(1, |n| n.get())

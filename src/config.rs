@@ -10,7 +10,8 @@ pub struct RunOverrides {
     /// Run configuration (TOML: [run], [sim], [train], [transport], [learner], [actor], [evaluator])
     #[arg(long)]
     pub config: Option<std::path::PathBuf>,
-    /// orca, lstm-rl, sarl, fsrl, sarl+foresight, sarl+efficiency [default: fsrl]
+    /// orca, lstm-rl, sarl, fsrl, sarl+foresight, sarl+efficiency, or fsrl-plan (beyond the
+    /// paper: FSRL deciding by depth-2 planning) [default: fsrl]
     #[arg(long)]
     pub method: Option<String>,
     /// One of the six settings [default: env1-invisible]

@@ -206,20 +206,26 @@ fn every_command_that_takes_a_checkpoint_takes_a_model_file() {
     assert_eq!(m.net.params(), model.net.params());
 
     // eval: the report names method, trained setting and seed; its numbers are the check's.
-    let ev = dir.join("ev");
-    ok(&[
-        "eval",
-        s(&model_path),
-        "--settings",
-        "env1-invisible",
-        "--episodes",
-        "3",
-        "--out",
-        s(&ev),
-    ]);
-    let json: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(ev.join("eval.json")).unwrap()).unwrap();
-    let subj = &json["subjects"][0];
+    // Three episodes of env1-invisible, with `extra` flags: the report's one subject.
+    let eval_subject = |out: &str, extra: &[&str]| -> serde_json::Value {
+        let out = dir.join(out);
+        let mut args = vec![
+            "eval",
+            s(&model_path),
+            "--settings",
+            "env1-invisible",
+            "--episodes",
+            "3",
+            "--out",
+            s(&out),
+        ];
+        args.extend_from_slice(extra);
+        ok(&args);
+        let json: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(out.join("eval.json")).unwrap()).unwrap();
+        json["subjects"][0].clone()
+    };
+    let subj = &eval_subject("ev", &[]);
     assert_eq!(subj["label"], "fsrl (trained env1-invisible, seed 11)");
     assert_eq!(subj["method"], "fsrl");
     assert_eq!(subj["trained_setting"], "env1-invisible");
@@ -237,27 +243,25 @@ fn every_command_that_takes_a_checkpoint_takes_a_model_file() {
     // Depth-2 planning (Experiment 21): the report says the decisions were planned, the
     // paper's one-step reports do not carry the field; out of range is a clear error.
     assert!(subj.get("planning_top_k").is_none(), "{subj}");
-    let planned = dir.join("ev-k3");
-    ok(&[
-        "eval",
-        s(&model_path),
-        "--settings",
-        "env1-invisible",
-        "--episodes",
-        "3",
-        "--planning-top-k",
-        "3",
-        "--out",
-        s(&planned),
-    ]);
-    let json: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(planned.join("eval.json")).unwrap()).unwrap();
-    assert_eq!(json["subjects"][0]["planning_top_k"], 3);
-    let e = fails(&["eval", s(&model_path), "--planning-top-k", "82"]);
-    assert!(
-        e.contains("--planning-top-k must be in 0..=81, got 82"),
-        "{e}"
+    assert!(subj.get("planning_breadth").is_none(), "{subj}");
+    let planned = eval_subject("ev-k3", &["--planning-top-k", "3"]);
+    assert_eq!(planned["planning_top_k"], 3);
+    assert!(planned.get("planning_breadth").is_none(), "{planned}");
+    let narrow = eval_subject(
+        "ev-k3m4",
+        &["--planning-top-k", "3", "--planning-breadth", "4"],
     );
+    assert_eq!(
+        (&narrow["planning_top_k"], &narrow["planning_breadth"]),
+        (&3.into(), &4.into())
+    );
+    for flag in ["--planning-top-k", "--planning-breadth"] {
+        let e = fails(&["eval", s(&model_path), flag, "82"]);
+        assert!(
+            e.contains(&format!("{flag} must be in 0..=81, got 82")),
+            "{e}"
+        );
+    }
     let wins = model
         .check
         .iter()
@@ -268,7 +272,7 @@ fn every_command_that_takes_a_checkpoint_takes_a_model_file() {
         Some(wins as u64),
         "{subj}"
     );
-    let md = std::fs::read_to_string(ev.join("eval.md")).unwrap();
+    let md = std::fs::read_to_string(dir.join("ev").join("eval.md")).unwrap();
     assert!(
         md.contains("trained on env1-invisible (run seed 11)"),
         "{md}"

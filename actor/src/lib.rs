@@ -42,13 +42,7 @@ impl Player {
     pub fn new(spec: &RunSpec) -> Result<Self, ActorError> {
         let env = Env::new(spec.method_sim(), spec.setting, 0)
             .map_err(|e| ActorError::Sim(e.to_string()))?;
-        let lookahead = Lookahead::new(
-            spec.train.gamma,
-            spec.train.human_model.into(),
-            spec.method.human_order(),
-        )
-        .with_terminal_previews(spec.train.terminal_previews)
-        .with_planning(spec.train.planning_top_k);
+        let lookahead = spec.train.training_lookahead(spec.method.human_order());
         Ok(Self {
             env,
             lookahead,
@@ -239,12 +233,7 @@ pub fn run(
     stop: &AtomicBool,
 ) -> Result<ActorExit, ActorError> {
     let status = Heartbeat::new(transport)?;
-    let result = run_inner(transport, spec, id, stop, &status);
-    match &result {
-        Ok(_) => status.set_state(ProcessState::Stopping),
-        Err(e) => status.fail(e),
-    }
-    result
+    status.finish(run_inner(transport, spec, id, stop, &status))
 }
 
 fn run_inner(

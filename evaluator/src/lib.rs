@@ -22,6 +22,9 @@ pub struct Subject<'a> {
     pub terminal_previews: bool,
     /// Depth-2 planning over this many best first steps (`TrainConfig::planning_top_k`; 0: off).
     pub planning_top_k: usize,
+    /// Second steps tried after each planned first step (`TrainConfig::planning_breadth`; 0:
+    /// every action).
+    pub planning_breadth: usize,
     /// Extra ORCA radius for the ORCA baseline.
     pub orca_safety_space_m: f64,
 }
@@ -41,6 +44,7 @@ impl<'a> Subject<'a> {
             human_model: train.human_model.into(),
             terminal_previews: train.terminal_previews,
             planning_top_k: train.planning_top_k,
+            planning_breadth: train.planning_breadth,
             orca_safety_space_m: 0.0,
         }
     }
@@ -99,7 +103,8 @@ pub fn evaluate(
                         subject.method.human_order(),
                     )
                     .with_terminal_previews(subject.terminal_previews)
-                    .with_planning(subject.planning_top_k);
+                    .with_planning(subject.planning_top_k)
+                    .with_planning_breadth(subject.planning_breadth);
                     for &(s, k) in jobs.iter().skip(w).step_by(threads) {
                         let env = match &mut envs[s] {
                             Some(env) => env,

@@ -305,12 +305,7 @@ pub fn run(
     keep: Option<KeepSnapshot<'_>>,
 ) -> Result<EvaluatorExit, ProcessError> {
     let status = Heartbeat::new(transport)?;
-    let result = run_inner(transport, spec, opts, stop, keep, &status);
-    match &result {
-        Ok(_) => status.set_state(ProcessState::Stopping),
-        Err(e) => status.fail(e),
-    }
-    result
+    status.finish(run_inner(transport, spec, opts, stop, keep, &status))
 }
 
 fn run_inner(

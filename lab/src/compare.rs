@@ -93,6 +93,7 @@ pub fn load_sources(paths: &[PathBuf]) -> anyhow::Result<Vec<Sourced>> {
                     policy_version: r.policy_version,
                     run_seed: cfg.as_ref().map(|c| c.run.seed),
                     planning_top_k: cfg.as_ref().map_or(0, |c| c.train.planning_top_k),
+                    planning_breadth: cfg.as_ref().map_or(0, |c| c.train.planning_breadth),
                     trained_setting: cfg.map(|c| c.run.setting),
                     settings: r.settings,
                 };
@@ -612,6 +613,7 @@ mod tests {
                 policy_version: 1,
                 run_seed: Some(seed),
                 planning_top_k: 0,
+                planning_breadth: 0,
                 trained_setting: Some("env1-invisible".into()),
                 settings: vec![SettingReport::new("env1-invisible", &agg)],
             }],

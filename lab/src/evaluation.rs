@@ -27,6 +27,8 @@ pub struct EvalPlan {
     pub orca_safety_space_m: f64,
     /// Overrides every model's `train.planning_top_k` (`fsrl eval --planning-top-k`).
     pub planning_top_k: Option<usize>,
+    /// Overrides every model's `train.planning_breadth` (`fsrl eval --planning-breadth`).
+    pub planning_breadth: Option<usize>,
 }
 
 /// The ORCA robot on `sim` as a report's subject.
@@ -42,6 +44,7 @@ pub fn evaluate_orca(
         human_model: policy::lookahead::HumanModel::Orca,
         terminal_previews: false,
         planning_top_k: 0,
+        planning_breadth: 0,
         orca_safety_space_m: plan.orca_safety_space_m,
     };
     let settings = evaluate_subject(
@@ -62,6 +65,7 @@ pub fn evaluate_orca(
         run_seed: None,
         trained_setting: None,
         planning_top_k: 0,
+        planning_breadth: 0,
         settings,
     })
 }
@@ -101,6 +105,7 @@ impl LoadedPolicy {
         let subject = Subject {
             orca_safety_space_m: plan.orca_safety_space_m,
             planning_top_k: plan.planning_top_k.unwrap_or(learned.planning_top_k),
+            planning_breadth: plan.planning_breadth.unwrap_or(learned.planning_breadth),
             ..learned
         };
         let settings = evaluate_subject(
@@ -122,6 +127,7 @@ impl LoadedPolicy {
             run_seed: Some(model.run_seed),
             trained_setting: Some(model.setting.name().to_string()),
             planning_top_k: subject.planning_top_k,
+            planning_breadth: subject.planning_breadth,
             settings,
         })
     }
@@ -263,6 +269,7 @@ mod tests {
             threads,
             orca_safety_space_m: 0.0,
             planning_top_k: None,
+            planning_breadth: None,
         };
         let done = AtomicUsize::new(0);
         let one = evaluate_orca(&sim, &plan(1), &|| {

@@ -341,6 +341,7 @@ mod tests {
             policy_version: 0,
             run_seed: seed,
             planning_top_k: 0,
+            planning_breadth: 0,
             trained_setting: None,
             settings: results
                 .iter()

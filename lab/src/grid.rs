@@ -216,7 +216,7 @@ impl Planned {
         let eval = export || !eval_is_current(&eval_dir, &[cell.setting], episodes, Some(&model));
         let config_differs = matches!(training, Training::Finished | Training::Resume { .. })
             && RunFile::load(&run_dir.join("config.toml")).is_ok_and(|run| {
-                run.train != *train
+                run.train != cell.method.train_config(train)
                     || cell.method.sim_config(&run.sim) != cell.method.sim_config(sim)
             });
         Planned {
@@ -640,6 +640,7 @@ mod tests {
             policy_version: 1,
             run_seed: Some(0),
             planning_top_k: 0,
+            planning_breadth: 0,
             trained_setting: None,
             settings: settings
                 .iter()

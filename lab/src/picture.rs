@@ -3,7 +3,6 @@
 
 use anyhow::Context;
 use learner::model::Model;
-use policy::lookahead::{HumanModel, Lookahead};
 use policy::method::Method;
 use sim::{run_episode, Env, Episode, EpisodeSummary, HumanState, Outcome, SimConfig};
 
@@ -90,10 +89,7 @@ pub fn play(
         None => run_episode(&mut env, |env| env.orca_robot_action(0.0), true)?,
         Some((l, _)) => {
             let train = &l.train;
-            let human_model: HumanModel = train.human_model.into();
-            let mut la = Lookahead::new(train.gamma, human_model, method.human_order())
-                .with_terminal_previews(train.terminal_previews)
-                .with_planning(train.planning_top_k);
+            let mut la = train.lookahead(method.human_order());
             let net = &l.net;
             run_episode(
                 &mut env,

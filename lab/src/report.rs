@@ -555,6 +555,9 @@ pub struct SubjectReport {
     /// paper's one-step lookahead).
     #[serde(default, skip_serializing_if = "is_zero")]
     pub planning_top_k: usize,
+    /// The second steps tried after each planned first step (absent: 0, every action).
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub planning_breadth: usize,
     pub settings: Vec<SettingReport>,
 }
 

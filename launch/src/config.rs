@@ -224,10 +224,16 @@ impl FileConfig {
     }
 
     /// Validates everything at once.
-    pub fn resolve(self, extra_problems: Vec<String>) -> Result<Resolved, ConfigError> {
+    /// A method's own training settings (`fsrl-plan`'s planning: `Method::train_config`) are
+    /// written into the resolved `[train]`, so that the run's config, checkpoints and model
+    /// files say how the policy decides.
+    pub fn resolve(mut self, extra_problems: Vec<String>) -> Result<Resolved, ConfigError> {
         let mut problems = extra_problems;
         let method = match self.run.method.parse::<Method>() {
-            Ok(m) => Some(m),
+            Ok(m) => {
+                self.train = m.train_config(&self.train);
+                Some(m)
+            }
             Err(e) => {
                 problems.push(e.to_string());
                 None
@@ -302,6 +308,44 @@ mod tests {
         let text = toml::to_string(&c).unwrap();
         let back: FileConfig = toml::from_str(&text).unwrap();
         assert_eq!(back, c);
+    }
+
+    /// `--method fsrl-plan` writes its planning into the resolved `[train]` (and so into the
+    /// run's config and model files); its own planning in a config is kept; `fsrl` plans never.
+    #[test]
+    fn fsrl_plan_resolves_with_its_decision_time_planning() {
+        let mut c = FileConfig::default();
+        c.run.method = "fsrl-plan".into();
+        let r = c.clone().resolve(Vec::new()).unwrap();
+        assert_eq!(r.method, Method::FsrlPlan);
+        let t = &r.file.train;
+        assert_eq!(
+            (t.planning_top_k, t.planning_breadth, t.planning_in_training),
+            (
+                policy::method::FSRL_PLAN_TOP_K,
+                policy::method::FSRL_PLAN_BREADTH,
+                false
+            )
+        );
+        assert!(toml::to_string(&r.file)
+            .unwrap()
+            .contains("planning_top_k = 8"));
+        c.train.planning_top_k = 3;
+        assert_eq!(
+            c.clone()
+                .resolve(Vec::new())
+                .unwrap()
+                .file
+                .train
+                .planning_top_k,
+            3
+        );
+        c.run.method = "fsrl".into();
+        c.train.planning_top_k = 0;
+        assert_eq!(
+            c.resolve(Vec::new()).unwrap().file.train,
+            Default::default()
+        );
     }
 
     #[test]

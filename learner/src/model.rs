@@ -21,7 +21,6 @@ use std::path::{Path, PathBuf};
 use serde::{Deserialize, Serialize};
 
 use policy::config::NetConfig;
-use policy::lookahead::Lookahead;
 use policy::method::{Method, TrainConfig};
 use policy::rollout::{rollout, Behaviour};
 use policy::ValueNet;
@@ -276,13 +275,7 @@ impl Model {
                     scope.spawn(move || -> Result<Vec<(usize, CheckEpisode)>, String> {
                         let mut out = Vec::new();
                         let mut env: Option<Env> = None;
-                        let mut lookahead = Lookahead::new(
-                            self.train.gamma,
-                            self.train.human_model.into(),
-                            self.method.human_order(),
-                        )
-                        .with_terminal_previews(self.train.terminal_previews)
-                        .with_planning(self.train.planning_top_k);
+                        let mut lookahead = self.train.lookahead(self.method.human_order());
                         for (i, &seed) in seeds.iter().enumerate().skip(w).step_by(threads) {
                             let env = match &mut env {
                                 Some(env) => env,

@@ -891,12 +891,7 @@ pub fn run_with_probe(
     probe: crate::store::Probe,
 ) -> Result<LearnerExit, ProcessError> {
     let status = Heartbeat::new(transport)?;
-    let result = run_inner(transport, spec, opts, stop, probe, &status);
-    match &result {
-        Ok(_) => status.set_state(ProcessState::Stopping),
-        Err(e) => status.fail(e),
-    }
-    result
+    status.finish(run_inner(transport, spec, opts, stop, probe, &status))
 }
 
 fn run_inner(

@@ -54,6 +54,9 @@ pub struct Lookahead {
     terminal: Vec<bool>,
     /// Depth-2 planning over this many best first steps (0: the paper's one-step lookahead).
     planning_top_k: usize,
+    /// The second steps planning tries after each first step: this many of the decision's best
+    /// first-step actions (0: the whole action set).
+    planning_breadth: usize,
     /// Per candidate of the last decision: the robot after its step (planning only).
     robot_next: Vec<RobotState>,
     plan: PlanBuffers,
@@ -68,6 +71,8 @@ pub struct Lookahead {
 struct PlanBuffers {
     /// The first steps rescored, best one-step score first.
     chosen: Vec<usize>,
+    /// The actions tried as second steps.
+    second: Vec<usize>,
     ranked: Vec<(f64, usize)>,
     /// The humans two steps ahead, as the network sees them.
     obs: Vec<HumanObs>,
@@ -103,6 +108,7 @@ impl Lookahead {
             terminal_previews: false,
             terminal: Vec::new(),
             planning_top_k: 0,
+            planning_breadth: 0,
             robot_next: Vec::new(),
             plan: PlanBuffers::default(),
             threads: 1,
@@ -115,6 +121,15 @@ impl Lookahead {
     /// set's size rescore every action.
     pub fn with_planning(mut self, top_k: usize) -> Self {
         self.planning_top_k = top_k;
+        self
+    }
+
+    /// The second steps depth-2 planning tries after each first step: the `breadth` actions
+    /// with the best one-step scores of the decision (the same for every first step; 0: every
+    /// action, as [`Lookahead::with_planning`] alone). Cuts the second level from `k × 81`
+    /// states to `k × breadth` (`train.planning_breadth`, docs/REPRODUCTION.md Experiment 24).
+    pub fn with_planning_breadth(mut self, breadth: usize) -> Self {
+        self.planning_breadth = breadth;
         self
     }
 
@@ -143,11 +158,7 @@ impl Lookahead {
     /// The candidate's lookahead value: `r + discount·v`, or `r` for a terminal step when
     /// terminal previews are on.
     fn score(&self, reward: f64, value: f32, terminal: bool, discount: f64) -> f64 {
-        if terminal && self.terminal_previews {
-            reward
-        } else {
-            reward + discount * value as f64
-        }
+        score(self.terminal_previews, reward, value, terminal, discount)
     }
 
     /// The attention weights `(A, N)` of the last decision's candidates (SARL only).
@@ -230,11 +241,13 @@ impl Lookahead {
         }
         let states = StateBatch::new(&self.batch, n_actions, self.obs.len())?;
         self.values.resize(n_actions, 0.0);
-        if self.threads > 1 {
-            net.values_split(states, &mut self.split, &mut self.values);
-        } else {
-            net.values_into(states, &mut self.scratch, &mut self.values);
-        }
+        net_values(
+            net,
+            &mut self.split,
+            &mut self.scratch,
+            states,
+            &mut self.values,
+        );
 
         let mut best = Decision {
             action: 0,
@@ -275,11 +288,7 @@ impl Lookahead {
         let n_actions = self.rewards.len();
         let previews = self.terminal_previews;
         let score = |reward: f64, value: f32, terminal: bool| {
-            if terminal && previews {
-                reward
-            } else {
-                reward + discount * value as f64
-            }
+            score(previews, reward, value, terminal, discount)
         };
         let plan = &mut self.plan;
         plan.ranked.clear();
@@ -299,6 +308,17 @@ impl Lookahead {
                 .take(self.planning_top_k)
                 .map(|&(_, a)| a),
         );
+        let breadth = match self.planning_breadth {
+            0 => n_actions,
+            m => m.min(plan.ranked.len()),
+        };
+        plan.second.clear();
+        if breadth >= n_actions {
+            plan.second.extend(0..n_actions);
+        } else {
+            plan.second
+                .extend(plan.ranked.iter().take(breadth).map(|&(_, a)| a));
+        }
 
         // The humans' second step: on at the velocities predicted for the first.
         plan.velocities.clear();
@@ -320,7 +340,7 @@ impl Lookahead {
                 continue;
             }
             let robot = self.robot_next[a];
-            for b in 0..n_actions {
+            for &b in &plan.second {
                 let action = env
                     .action_set()
                     .get(b)
@@ -348,11 +368,13 @@ impl Lookahead {
         plan.values.resize(rows, 0.0);
         if rows > 0 {
             let states = StateBatch::new(&plan.batch, rows, plan.obs.len())?;
-            if self.threads > 1 {
-                net.values_split(states, &mut self.split, &mut plan.values);
-            } else {
-                net.values_into(states, &mut plan.scratch, &mut plan.values);
-            }
+            net_values(
+                net,
+                &mut self.split,
+                &mut plan.scratch,
+                states,
+                &mut plan.values,
+            );
         }
 
         let mut best = Decision {
@@ -365,7 +387,7 @@ impl Lookahead {
                 score(self.rewards[a], self.values[a], true)
             } else {
                 let mut second = f64::NEG_INFINITY;
-                for _ in 0..n_actions {
+                for _ in 0..plan.second.len() {
                     let v = score(plan.rewards[row], plan.values[row], plan.terminal[row]);
                     if v > second {
                         second = v;
@@ -383,6 +405,32 @@ impl Lookahead {
             return Err(PolicyError::NonFinite("planning values"));
         }
         Ok(best)
+    }
+}
+
+/// A candidate's lookahead value: `r + discount·v`, or `r` for a terminal step when terminal
+/// previews are on.
+fn score(previews: bool, reward: f64, value: f32, terminal: bool, discount: f64) -> f64 {
+    if terminal && previews {
+        reward
+    } else {
+        reward + discount * value as f64
+    }
+}
+
+/// The network's values of `states` into `out`: split over `split`'s scratches when there are
+/// several (`Lookahead::with_threads`), else on this thread with `scratch`.
+fn net_values(
+    net: &ValueNet,
+    split: &mut [Scratch],
+    scratch: &mut Scratch,
+    states: StateBatch<'_>,
+    out: &mut [f32],
+) {
+    if split.len() > 1 {
+        net.values_split(states, split, out);
+    } else {
+        net.values_into(states, scratch, out);
     }
 }
 
@@ -436,8 +484,14 @@ mod tests {
     }
 
     /// The depth-2 value of one state written out by hand: every first step `a`, every second
-    /// step `b`, the humans on at constant velocity, `r1 + d·max_b[r2 + d·V(s'')]`.
-    fn depth_two_by_hand(env: &Env, net: &ValueNet, gamma: f64) -> Vec<f64> {
+    /// step `b` of `second` (`None`: every action), the humans on at constant velocity,
+    /// `r1 + d·max_b[r2 + d·V(s'')]`.
+    fn depth_two_by_hand(
+        env: &Env,
+        net: &ValueNet,
+        gamma: f64,
+        second: Option<&[usize]>,
+    ) -> Vec<f64> {
         let cfg = env.config();
         let robot = *env.robot();
         let d = gamma.powf(cfg.dt_s * robot.v_pref_mps);
@@ -466,7 +520,8 @@ mod tests {
                 );
                 assert!(!first.outcome.is_terminal(), "pick states far from the end");
                 let mut best = f64::NEG_INFINITY;
-                for b in 0..actions.len() {
+                let every: Vec<usize> = (0..actions.len()).collect();
+                for &b in second.unwrap_or(&every) {
                     let second = evaluate_step(
                         cfg,
                         &first.robot_next,
@@ -510,7 +565,7 @@ mod tests {
             env.reset(seed).unwrap();
             // The first steps of an episode: the goal is metres away, nothing is terminal.
             for _ in 0..4 {
-                let by_hand = depth_two_by_hand(&env, &net, 0.9);
+                let by_hand = depth_two_by_hand(&env, &net, 0.9, None);
                 let planned = all.decide(&mut env, &net).unwrap();
                 let best = by_hand.iter().copied().enumerate().fold(
                     (0, f64::NEG_INFINITY),
@@ -596,5 +651,61 @@ mod tests {
             }
         }
         assert!(steps > 50);
+    }
+
+    /// With a breadth of m, each first step's second steps are the m best one-step actions of
+    /// the decision: the planned value is the depth-2 value written out by hand over that
+    /// subset; a breadth of the whole action set decides as no breadth at all. Fails when
+    /// `with_planning_breadth` is ignored: the full second level's value is not the subset's
+    /// (checked to differ on some of these states).
+    #[test]
+    fn planning_breadth_tries_the_m_best_one_step_actions_as_second_steps() {
+        let setting: Setting = "env1-invisible".parse().unwrap();
+        let mut env = Env::new(SimConfig::default(), setting, 0).unwrap();
+        let net = ValueNet::new(NetConfig::sarl(), 5).unwrap();
+        let model = HumanModel::ConstantVelocity;
+        let new = || Lookahead::new(0.9, model, HumanOrder::AsGiven);
+        let mut paper = new();
+        let mut full = new().with_planning(MAX_PLANNING_TOP_K);
+        let mut wide = new()
+            .with_planning(MAX_PLANNING_TOP_K)
+            .with_planning_breadth(MAX_PLANNING_TOP_K);
+        let mut narrow = new()
+            .with_planning(MAX_PLANNING_TOP_K)
+            .with_planning_breadth(4);
+        let (mut states, mut differ) = (0, 0);
+        for seed in 0..3 {
+            env.reset(seed).unwrap();
+            for _ in 0..4 {
+                paper.decide(&mut env, &net).unwrap();
+                let mut ranked: Vec<(f64, usize)> = paper
+                    .last_values()
+                    .enumerate()
+                    .map(|(a, v)| (v, a))
+                    .collect();
+                ranked.sort_by(|x, y| y.0.total_cmp(&x.0).then(x.1.cmp(&y.1)));
+                let subset: Vec<usize> = ranked.iter().take(4).map(|&(_, a)| a).collect();
+                let by_hand = depth_two_by_hand(&env, &net, 0.9, Some(&subset));
+                let best = by_hand.iter().copied().enumerate().fold(
+                    (0, f64::NEG_INFINITY),
+                    |b, (a, v)| if v > b.1 { (a, v) } else { b },
+                );
+                let planned = narrow.decide(&mut env, &net).unwrap();
+                assert_eq!(planned.action, best.0, "seed {seed}");
+                assert!(
+                    (planned.value - best.1).abs() < 1e-9,
+                    "{} vs {}",
+                    planned.value,
+                    best.1
+                );
+                let everything = full.decide(&mut env, &net).unwrap();
+                assert_eq!(wide.decide(&mut env, &net).unwrap(), everything);
+                differ += usize::from((everything.value - planned.value).abs() > 1e-12);
+                states += 1;
+                let action = env.orca_robot_action(0.0);
+                env.step(action).unwrap();
+            }
+        }
+        assert!(differ > 0, "the breadth changed none of {states} values");
     }
 }

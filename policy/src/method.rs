@@ -33,16 +33,28 @@ pub enum Method {
     /// SARL network, R_c + efficiency (R_t).
     #[serde(rename = "sarl+efficiency")]
     SarlEfficiency,
+    /// Beyond the paper: FSRL's network, reward and training, deciding by depth-2 planning
+    /// ([`FSRL_PLAN_TOP_K`] first steps, [`FSRL_PLAN_BREADTH`] second steps each) wherever it
+    /// decides greedily (validation, evaluation, `fsrl serve`); its actors explore with the
+    /// paper's one-step lookahead (docs/REPRODUCTION.md, Experiments 21–24).
+    #[serde(rename = "fsrl-plan")]
+    FsrlPlan,
 }
 
+/// The first steps `fsrl-plan` rescores (Experiment 23).
+pub const FSRL_PLAN_TOP_K: usize = 8;
+/// The second steps `fsrl-plan` tries after each first step (Experiment 24).
+pub const FSRL_PLAN_BREADTH: usize = 8;
+
 impl Method {
-    pub const ALL: [Method; 6] = [
+    pub const ALL: [Method; 7] = [
         Method::Orca,
         Method::LstmRl,
         Method::Sarl,
         Method::Fsrl,
         Method::SarlForesight,
         Method::SarlEfficiency,
+        Method::FsrlPlan,
     ];
 
     pub fn name(self) -> &'static str {
@@ -53,7 +65,27 @@ impl Method {
             Method::Fsrl => "fsrl",
             Method::SarlForesight => "sarl+foresight",
             Method::SarlEfficiency => "sarl+efficiency",
+            Method::FsrlPlan => "fsrl-plan",
         }
+    }
+
+    /// Whether the method is the paper's (or one of its baselines and ablations) rather than
+    /// one beyond it.
+    pub fn is_papers(self) -> bool {
+        !matches!(self, Method::FsrlPlan)
+    }
+
+    /// The training config this method runs with: `base`, with `fsrl-plan`'s decision-time
+    /// planning when `base` asks for none (`train.planning_top_k = 0`); a config that sets
+    /// its own planning keeps it. Every other method: `base` unchanged.
+    pub fn train_config(self, base: &TrainConfig) -> TrainConfig {
+        let mut cfg = base.clone();
+        if self == Method::FsrlPlan && cfg.planning_top_k == 0 {
+            cfg.planning_top_k = FSRL_PLAN_TOP_K;
+            cfg.planning_breadth = FSRL_PLAN_BREADTH;
+            cfg.planning_in_training = false;
+        }
+        cfg
     }
 
     /// The value network, `None` for ORCA.
@@ -69,7 +101,7 @@ impl Method {
     pub fn reward_switches(self) -> (bool, bool) {
         match self {
             Method::Orca | Method::LstmRl | Method::Sarl => (false, false),
-            Method::Fsrl => (true, true),
+            Method::Fsrl | Method::FsrlPlan => (true, true),
             Method::SarlForesight => (true, false),
             Method::SarlEfficiency => (false, true),
         }
@@ -101,7 +133,7 @@ impl fmt::Display for Method {
 
 /// An unknown method name.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
-#[error("unknown method `{0}`; expected one of orca, lstm-rl, sarl, fsrl, sarl+foresight, sarl+efficiency")]
+#[error("unknown method `{0}`; expected one of orca, lstm-rl, sarl, fsrl, sarl+foresight, sarl+efficiency, fsrl-plan")]
 pub struct UnknownMethod(pub String);
 
 impl FromStr for Method {
@@ -219,6 +251,10 @@ fn is_zero(n: &usize) -> bool {
     *n == 0
 }
 
+fn is_true(b: &bool) -> bool {
+    *b
+}
+
 /// Bounds of the adaptive mode's replay ratio, in updates (batches) per accepted RL episode:
 /// below `min` the learner takes no further episode (the actors wait for credits), at `max` it
 /// waits for one instead of training on.
@@ -305,6 +341,16 @@ pub struct TrainConfig {
     /// configs, checkpoints and model files keep their bytes.
     #[serde(skip_serializing_if = "is_zero")]
     pub planning_top_k: usize,
+    /// The second steps planning tries after each first step: the decision's
+    /// `planning_breadth` best one-step actions (`Lookahead::with_planning_breadth`; 0: all of
+    /// them). Beyond the paper (Experiment 24); not written when 0.
+    #[serde(skip_serializing_if = "is_zero")]
+    pub planning_breadth: usize,
+    /// Whether the actors plan too (true: planning everywhere, Experiment 22's arm B); false:
+    /// the actors explore with the one-step lookahead and planning is for greedy decisions
+    /// only (validation, evaluation, serving). Not written when true.
+    #[serde(skip_serializing_if = "is_true")]
+    pub planning_in_training: bool,
     pub imitation: ImitationConfig,
     pub rl: RlConfig,
     /// Write a checkpoint every this many RL episodes (0: only at the end).
@@ -370,6 +416,8 @@ impl Default for TrainConfig {
             human_model: HumanModelName::Orca,
             terminal_previews: false,
             planning_top_k: 0,
+            planning_breadth: 0,
+            planning_in_training: true,
             imitation: ImitationConfig::default(),
             rl: RlConfig::default(),
             checkpoint_every_episodes: 500,
@@ -384,6 +432,29 @@ impl Default for TrainConfig {
 }
 
 impl TrainConfig {
+    /// The greedy policy's lookahead (validation, evaluation, serving): γ, the human model,
+    /// terminal previews and planning as configured, the network reading humans in `order`.
+    pub fn lookahead(&self, order: crate::joint::HumanOrder) -> crate::lookahead::Lookahead {
+        crate::lookahead::Lookahead::new(self.gamma, self.human_model.into(), order)
+            .with_terminal_previews(self.terminal_previews)
+            .with_planning(self.planning_top_k)
+            .with_planning_breadth(self.planning_breadth)
+    }
+
+    /// The actors' lookahead: as [`TrainConfig::lookahead`], without planning unless
+    /// `planning_in_training`.
+    pub fn training_lookahead(
+        &self,
+        order: crate::joint::HumanOrder,
+    ) -> crate::lookahead::Lookahead {
+        let la = self.lookahead(order);
+        if self.planning_in_training {
+            la
+        } else {
+            la.with_planning(0)
+        }
+    }
+
     /// Every problem at once, as strings (the caller wraps them with other problems).
     pub fn problems(&self) -> Vec<String> {
         let mut p = Vec::new();
@@ -446,6 +517,19 @@ impl TrainConfig {
                 "train.planning_top_k must be in 0..={}, got {}",
                 crate::lookahead::MAX_PLANNING_TOP_K,
                 self.planning_top_k
+            ));
+        }
+        if self.planning_breadth > crate::lookahead::MAX_PLANNING_TOP_K {
+            p.push(format!(
+                "train.planning_breadth must be in 0..={}, got {}",
+                crate::lookahead::MAX_PLANNING_TOP_K,
+                self.planning_breadth
+            ));
+        }
+        if self.planning_breadth > 0 && self.planning_top_k == 0 {
+            p.push(format!(
+                "train.planning_breadth = {} needs train.planning_top_k of at least 1 (no planning, no second steps)",
+                self.planning_breadth
             ));
         }
         if self.rl.target_update_episodes == 0 {
@@ -585,6 +669,82 @@ mod tests {
             p.len() == 1 && p[0].contains("train.planning_top_k"),
             "{p:?}"
         );
+    }
+
+    /// The breadth and the actors' switch: read, checked, absent when at their defaults; the
+    /// training lookahead plans only when `planning_in_training` (checked by deciding: the
+    /// actors' and the greedy lookahead part ways on some state exactly when it is false).
+    #[test]
+    fn planning_breadth_and_the_actors_switch_are_read_checked_and_used() {
+        let parsed: TrainConfig = toml::from_str(
+            "planning_top_k = 8\nplanning_breadth = 8\nplanning_in_training = false\n",
+        )
+        .unwrap();
+        assert_eq!(
+            (parsed.planning_breadth, parsed.planning_in_training),
+            (8, false)
+        );
+        assert!(parsed.problems().is_empty());
+        let text = toml::to_string(&parsed).unwrap();
+        assert!(
+            text.contains("planning_breadth = 8") && text.contains("planning_in_training = false"),
+            "{text}"
+        );
+        let mut c = TrainConfig::default();
+        c.planning_breadth = 4;
+        assert!(c.problems()[0].contains("needs train.planning_top_k"));
+        c.planning_top_k = 2;
+        c.planning_breadth = crate::lookahead::MAX_PLANNING_TOP_K + 1;
+        assert!(c.problems()[0].contains("train.planning_breadth must be in"));
+
+        let setting: sim::Setting = "env2-invisible".parse().unwrap();
+        let mut env = sim::Env::new(SimConfig::default(), setting, 0).unwrap();
+        let net = crate::ValueNet::new(crate::NetConfig::sarl(), 10).unwrap();
+        let order = HumanOrder::AsGiven;
+        let parted = |train: &TrainConfig, env: &mut sim::Env| {
+            let (mut greedy, mut acting) =
+                (train.lookahead(order), train.training_lookahead(order));
+            let mut parted = 0;
+            for seed in 0..3 {
+                env.reset(seed).unwrap();
+                while !env.is_done() {
+                    let g = greedy.decide(env, &net).unwrap();
+                    let a = acting.decide(env, &net).unwrap();
+                    parted += usize::from(g != a);
+                    let action = env.orca_robot_action(0.0);
+                    env.step(action).unwrap();
+                }
+            }
+            parted
+        };
+        assert!(parted(&parsed, &mut env) > 0);
+        let mut everywhere = parsed.clone();
+        everywhere.planning_in_training = true;
+        assert_eq!(parted(&everywhere, &mut env), 0);
+    }
+
+    /// `fsrl-plan` is FSRL with planning at decision time: the same network and reward, and the
+    /// planning preset unless the config sets its own; every other method's config is as given.
+    #[test]
+    fn fsrl_plan_is_fsrl_deciding_by_planning() {
+        let m: Method = "fsrl-plan".parse().unwrap();
+        assert_eq!(m, Method::FsrlPlan);
+        assert!(!m.is_papers() && Method::Fsrl.is_papers());
+        assert_eq!(m.net(), Method::Fsrl.net());
+        assert_eq!(m.reward_switches(), Method::Fsrl.reward_switches());
+        let base = TrainConfig::default();
+        let t = m.train_config(&base);
+        assert_eq!(
+            (t.planning_top_k, t.planning_breadth, t.planning_in_training),
+            (FSRL_PLAN_TOP_K, FSRL_PLAN_BREADTH, false)
+        );
+        assert!(t.problems().is_empty());
+        let mut own = base.clone();
+        own.planning_top_k = 3;
+        assert_eq!(m.train_config(&own), own);
+        for other in Method::ALL.into_iter().filter(|&x| x != m) {
+            assert_eq!(other.train_config(&base), base, "{other}");
+        }
     }
 
     #[test]

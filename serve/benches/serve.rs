@@ -2,8 +2,9 @@
 //! evaluator's lookahead on the observed state) and the loop from the last input published to
 //! the command received, over zenoh on loopback (people then odometry, CDR, bridge keys,
 //! `Trigger::Odometry`: the decision starts when the odometry arrives), for 5 and 10 people.
-//! Prints p50/p99 in ms, and one decision with depth-2 planning (`FSRL_SERVE_PLANNING_K`,
-//! default 3 and 8) beside the model's own, as ratios. `cargo bench --workspace --bench serve`.
+//! Prints p50/p99 in ms, and one decision with depth-2 planning (`FSRL_SERVE_PLANNING_K`: top-k
+//! values, each optionally `/M` for a breadth of M second steps; default `3,8,8/8,8/16`) beside
+//! the model's own, as ratios. `cargo bench --workspace --bench serve`.
 
 use std::path::Path;
 use std::sync::mpsc;
@@ -47,13 +48,15 @@ fn states(people: usize) -> Vec<Env> {
 }
 
 /// One decision's p50 and p99 (ms) over the states with `people` humans; `planning`: decide
-/// with depth-2 planning over that many first steps instead of the model's own setting.
-fn decisions(people: usize, planning: Option<usize>, threads: usize) -> (f64, f64) {
+/// with depth-2 planning over that many first steps (and that breadth of second steps)
+/// instead of the model's own setting.
+fn decisions(people: usize, planning: Option<(usize, usize)>, threads: usize) -> (f64, f64) {
     let (mut model, _) = learner::model::load_policy(Path::new(MODEL)).unwrap();
-    if let Some(k) = planning {
+    if let Some((k, m)) = planning {
         model.train.planning_top_k = k;
+        model.train.planning_breadth = m;
     }
-    let k = model.train.planning_top_k;
+    let (k, m) = (model.train.planning_top_k, model.train.planning_breadth);
     let mut served = ServedPolicy::from_model(model, None)
         .unwrap()
         .with_threads(threads);
@@ -71,7 +74,7 @@ fn decisions(people: usize, planning: Option<usize>, threads: usize) -> (f64, f6
         .collect();
     let (p50, p99) = (pct(&mut ms, 0.5), pct(&mut ms, 0.99));
     println!(
-        "decision, {people:>2} people, planning top-k {k}, {threads} thread(s): p50 {p50:.3} ms, p99 {p99:.3} ms ({} states)",
+        "decision, {people:>2} people, planning top-k {k} breadth {m}, {threads} thread(s): p50 {p50:.3} ms, p99 {p99:.3} ms ({} states)",
         ms.len()
     );
     (p50, p99)
@@ -200,15 +203,16 @@ fn main() {
         return;
     }
     // Depth-2 planning arms (Experiment 21), beside the model's own decision in the same run:
-    // FSRL_SERVE_PLANNING_K, comma-separated top-k values (default 3,8; empty: none).
-    let planning: Vec<usize> = std::env::var("FSRL_SERVE_PLANNING_K")
-        .unwrap_or_else(|_| "3,8".into())
+    // FSRL_SERVE_PLANNING_K, comma-separated `K` or `K/M` (breadth M, Experiment 24; default
+    // 3,8,8/8,8/16; empty: none).
+    let planning: Vec<(usize, usize)> = std::env::var("FSRL_SERVE_PLANNING_K")
+        .unwrap_or_else(|_| "3,8,8/8,8/16".into())
         .split(',')
         .filter(|k| !k.trim().is_empty())
-        .map(|k| {
-            k.trim()
-                .parse()
-                .expect("FSRL_SERVE_PLANNING_K: top-k values")
+        .map(|arm| {
+            let bad = "FSRL_SERVE_PLANNING_K: K or K/M, comma-separated";
+            let (k, m) = arm.trim().split_once('/').unwrap_or((arm.trim(), "0"));
+            (k.parse().expect(bad), m.parse().expect(bad))
         })
         .collect();
     // Each planning arm on one thread and split over every core (`fsrl serve --threads`).
@@ -216,11 +220,11 @@ fn main() {
     let threads: Vec<usize> = if cores > 1 { vec![1, cores] } else { vec![1] };
     for people in [5, 10] {
         let own = decisions(people, None, 1);
-        for &k in &planning {
+        for &(k, m) in &planning {
             for &t in &threads {
-                let arm = decisions(people, Some(k), t);
+                let arm = decisions(people, Some((k, m)), t);
                 println!(
-                    "  planning top-k {k}, {t} thread(s) / own, {people:>2} people: p50 {:.2}x, p99 {:.2}x",
+                    "  planning top-k {k} breadth {m}, {t} thread(s) / own, {people:>2} people: p50 {:.2}x, p99 {:.2}x",
                     arm.0 / own.0,
                     arm.1 / own.1
                 );

@@ -102,6 +102,9 @@ pub struct ServeOptions {
     /// Depth-2 planning over this many best first steps, whatever the model was trained with
     /// (`train.planning_top_k`; 0: the paper's one-step lookahead); default the model's own.
     pub planning_top_k: Option<usize>,
+    /// Second steps tried after each planned first step, whatever the model says
+    /// (`train.planning_breadth`; 0: every action); default the model's own.
+    pub planning_breadth: Option<usize>,
     /// Threads of one decision's network batches (1: the loop's own; more pay with planning).
     pub threads: usize,
     pub zenoh: transport::ZenohConfig,
@@ -142,6 +145,7 @@ impl ServeOptions {
             decision_budget_s: None,
             robot_visible: None,
             planning_top_k: None,
+            planning_breadth: None,
             threads: 1,
             zenoh: transport::ZenohConfig::default(),
         }
@@ -189,10 +193,13 @@ impl ServeOptions {
                 self.threads
             ));
         }
-        if let Some(k) = self.planning_top_k {
-            let max = policy::lookahead::MAX_PLANNING_TOP_K;
-            if k > max {
-                problems.push(format!("--planning-top-k {k}: must be at most {max}"));
+        let max = policy::lookahead::MAX_PLANNING_TOP_K;
+        for (flag, v) in [
+            ("--planning-top-k", self.planning_top_k),
+            ("--planning-breadth", self.planning_breadth),
+        ] {
+            if let Some(v) = v.filter(|&v| v > max) {
+                problems.push(format!("{flag} {v}: must be at most {max}"));
             }
         }
         problems.extend(self.limits.check());
@@ -760,11 +767,17 @@ pub fn run(
     let mut node = RosNode::open(&opts.zenoh, opts.style.clone(), &opts.name)?;
     let mut cmd = node.command_publisher::<Twist>(&opts.topics.cmd_vel)?;
     let mut policy = match ServedPolicy::load(&opts.model, opts.robot_visible) {
-        Ok(p) => match opts.planning_top_k {
-            Some(k) => p.with_planning_top_k(k),
-            None => p,
+        Ok(p) => {
+            let p = match opts.planning_top_k {
+                Some(k) => p.with_planning_top_k(k),
+                None => p,
+            };
+            match opts.planning_breadth {
+                Some(m) => p.with_planning_breadth(m),
+                None => p,
+            }
+            .with_threads(opts.threads)
         }
-        .with_threads(opts.threads),
         Err(e) => {
             let reason = StopReason::ModelNotLoaded(e.to_string());
             tracing::error!("zero command: {reason}");
@@ -1039,6 +1052,7 @@ mod tests {
         o.limits.max_turn_rate_radps = Some(f64::NAN);
         o.max_people = 0;
         o.planning_top_k = Some(policy::lookahead::MAX_PLANNING_TOP_K + 1);
+        o.planning_breadth = Some(policy::lookahead::MAX_PLANNING_TOP_K + 2);
         o.threads = 0;
         let e = o.check().unwrap_err().to_string();
         for flag in [
@@ -1047,6 +1061,7 @@ mod tests {
             "--max-turn-rate-radps NaN",
             "--max-people 0",
             "--planning-top-k 82",
+            "--planning-breadth 83",
             "--threads 0",
         ] {
             assert!(e.contains(flag), "{flag}: {e}");

@@ -214,6 +214,14 @@ impl ServedPolicy {
         self
     }
 
+    /// Tries the `breadth` best one-step actions as second steps when planning (0: every
+    /// action), whatever the model says; [`ServedPolicy::model`] then says so.
+    pub fn with_planning_breadth(mut self, breadth: usize) -> Self {
+        self.model.train.planning_breadth = breadth;
+        self.lookahead = self.lookahead.with_planning_breadth(breadth);
+        self
+    }
+
     /// Splits each decision's network batches over `threads` threads (the decisions are the
     /// same bit for bit; `Lookahead::with_threads`).
     pub fn with_threads(mut self, threads: usize) -> Self {
@@ -231,13 +239,7 @@ impl ServedPolicy {
             setting.robot_visible = v;
         }
         // Exactly the evaluator's lookahead (evaluator::evaluate).
-        let lookahead = Lookahead::new(
-            model.train.gamma,
-            model.train.human_model.into(),
-            model.method.human_order(),
-        )
-        .with_terminal_previews(model.train.terminal_previews)
-        .with_planning(model.train.planning_top_k);
+        let lookahead = model.train.lookahead(model.method.human_order());
         let actions = ActionSet::for_config(&cfg);
         Ok(Self {
             model,
@@ -484,16 +486,19 @@ mod tests {
         let _ = (HumanOrder::AsGiven, HumanModel::Orca);
     }
 
-    /// `fsrl serve --planning-top-k`: the served decision is the evaluator's planned one, and
-    /// planning changes some decisions of the model's own (one-step) lookahead.
+    /// `fsrl serve --planning-top-k 3 --planning-breadth 4`: the served decision is the
+    /// evaluator's planned one, planning changes some decisions of the model's own (one-step)
+    /// lookahead, and the breadth some values of planning over every second step.
     #[test]
     fn served_planning_decides_as_the_evaluators_planning() {
         let m = model();
         assert_eq!(m.train.planning_top_k, 0);
         let mut served = ServedPolicy::from_model(m.clone(), None)
             .unwrap()
-            .with_planning_top_k(3);
+            .with_planning_top_k(3)
+            .with_planning_breadth(4);
         assert_eq!(served.model().train.planning_top_k, 3);
+        assert_eq!(served.model().train.planning_breadth, 4);
         let cfg = m.method_sim();
         let mut env = Env::new(cfg, m.setting, 1000).unwrap();
         let new = || {
@@ -504,21 +509,27 @@ mod tests {
             )
             .with_terminal_previews(m.train.terminal_previews)
         };
-        let (mut planned, mut one_step) = (new().with_planning(3), new());
-        let (mut steps, mut differ) = (0, 0);
+        let (mut planned, mut one_step) = (new().with_planning(3).with_planning_breadth(4), new());
+        let mut wide = new().with_planning(3);
+        let (mut steps, mut differ, mut narrower) = (0, 0, 0);
         for seed in 1000..1002 {
             env.reset(seed).unwrap();
             while !env.is_done() {
                 let want = planned.decide(&mut env, &m.net).unwrap();
                 let plain = one_step.decide(&mut env, &m.net).unwrap();
+                let every = wide.decide(&mut env, &m.net).unwrap();
                 let got = served.decide(&Observation::of_env(&env)).unwrap();
                 assert_eq!((got.action, got.value), (want.action, want.value));
                 differ += usize::from(plain.action != want.action);
+                narrower += usize::from(every.value != want.value);
                 env.step(want.action).unwrap();
                 steps += 1;
             }
         }
-        assert!(steps > 20 && differ > 0, "{differ} of {steps}");
+        assert!(
+            steps > 20 && differ > 0 && narrower > 0,
+            "{differ}, {narrower} of {steps}"
+        );
     }
 
     #[test]

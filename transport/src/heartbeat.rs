@@ -105,6 +105,16 @@ impl Heartbeat {
         self.send();
     }
 
+    /// The process's run is over with `result`: stopping when it ended well, failed with its
+    /// error otherwise (sent at once either way). Returns `result`, for the caller to return.
+    pub fn finish<T, E: fmt::Display>(&self, result: Result<T, E>) -> Result<T, E> {
+        match &result {
+            Ok(_) => self.set_state(ProcessState::Stopping),
+            Err(e) => self.fail(e),
+        }
+        result
+    }
+
     /// Environment steps and episodes so far (sent with the next heartbeat).
     pub fn progress(&self, env_steps: u64, episodes: u64) {
         let mut b = lock(&self.beat);
