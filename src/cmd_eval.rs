@@ -24,7 +24,7 @@ pub struct EvalArgs {
     /// directories of `fsrl train` (their checkpoints/latest.ckpt, or the validation snapshot
     /// their `train.select` chooses); a file's kind is read from its first bytes.
     pub inputs: Vec<PathBuf>,
-    /// Which weights of a run directory: last, best-validation or low-disc [default: the run's
+    /// Which weights of a run directory: last, best-validation, low-disc or best-return [default: the run's
     /// train.select].
     #[arg(long, value_parser = parse_select)]
     pub select: Option<Select>,
@@ -67,10 +67,10 @@ pub struct EvalArgs {
 
 /// `--select`: a `train.select` value.
 pub fn parse_select(s: &str) -> Result<Select, String> {
-    [Select::Last, Select::BestValidation, Select::LowDisc]
+    Select::ALL
         .into_iter()
         .find(|r| r.name() == s)
-        .ok_or_else(|| format!("{s:?}: not one of last, best-validation, low-disc"))
+        .ok_or_else(|| format!("{s:?}: not one of last, best-validation, low-disc, best-return"))
 }
 
 pub fn progress(len: u64, what: &str) -> ProgressBar {

@@ -19,7 +19,7 @@ pub struct ExportArgs {
     /// snapshot its `train.select` chooses), a checkpoint, or a model file (its check is
     /// recorded again).
     pub input: PathBuf,
-    /// Which weights of a run directory: last, best-validation or low-disc [default: the run's
+    /// Which weights of a run directory: last, best-validation, low-disc or best-return [default: the run's
     /// train.select].
     #[arg(long, value_parser = crate::cmd_eval::parse_select)]
     pub select: Option<policy::method::Select>,

@@ -631,6 +631,7 @@ mod tests {
                     collision: 0.0,
                     disc: Some(0.3 - 0.02 * nav + shift),
                     nav_time_s: Some(nav + seed as f64 * 0.5),
+                    mean_return: None,
                 })
                 .collect(),
             chosen: None,
@@ -680,6 +681,7 @@ mod tests {
             collision: 0.0,
             disc: Some(disc),
             nav_time_s: Some(nav),
+            mean_return: None,
         };
         let run = |method: &str, setting: &str, good: Vec<Validation>, chosen| RunSnapshots {
             run: PathBuf::from(format!("{method}-{setting}")),

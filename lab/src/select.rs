@@ -28,6 +28,8 @@ pub struct Validation {
     /// Mean Nav. Time (s) of the successful validation episodes (`nav_time_s`); absent in old
     /// logs and without a success.
     pub nav_time_s: Option<f64>,
+    /// Mean return of the validation episodes (`mean_return`); absent in old logs.
+    pub mean_return: Option<f64>,
 }
 
 /// The validations of a metrics log, one per RL episode count: a resumed run validates the
@@ -58,10 +60,12 @@ pub fn validations(metrics_jsonl: &str) -> (Vec<Validation>, usize) {
             continue;
         };
         let (disc, nav_time_s) = (num("discomfort"), num("nav_time_s"));
+        let mean_return = num("mean_return");
         let valid = rate(success)
             && rate(collision)
             && disc.is_none_or(rate)
-            && nav_time_s.is_none_or(|t| t.is_finite() && t > 0.0);
+            && nav_time_s.is_none_or(|t| t.is_finite() && t > 0.0)
+            && mean_return.is_none_or(f64::is_finite);
         if !valid {
             skipped += 1;
             continue;
@@ -74,6 +78,7 @@ pub fn validations(metrics_jsonl: &str) -> (Vec<Validation>, usize) {
                 collision,
                 disc,
                 nav_time_s,
+                mean_return,
             },
         );
     }
@@ -116,6 +121,27 @@ pub fn low_disc(
     }
 }
 
+/// [`Select::BestReturn`]: among the validations after `from_episode` RL episodes, the highest
+/// mean return (ties: the later); without one that has a return, [`best`].
+pub fn best_return(
+    candidates: impl IntoIterator<Item = Validation>,
+    from_episode: u64,
+) -> Option<Validation> {
+    let all: Vec<Validation> = candidates.into_iter().collect();
+    let top = all
+        .iter()
+        .filter(|v| v.rl_episodes >= from_episode)
+        .filter_map(|v| v.mean_return.map(|r| (r, v)))
+        .fold(None::<(f64, &Validation)>, |acc, (r, v)| match acc {
+            Some((br, _)) if r < br => acc,
+            _ => Some((r, v)),
+        });
+    match top {
+        Some((_, v)) => Some(v.clone()),
+        None => best(all),
+    }
+}
+
 /// The validation `rule` chooses among `candidates` (`None` for [`Select::Last`]).
 pub fn choose(
     rule: Select,
@@ -126,6 +152,7 @@ pub fn choose(
         Select::Last => None,
         Select::BestValidation => best(candidates),
         Select::LowDisc => low_disc(candidates, decay_end_episode),
+        Select::BestReturn => best_return(candidates, decay_end_episode),
     }
 }
 
@@ -283,6 +310,7 @@ mod tests {
             collision: c,
             disc: None,
             nav_time_s: None,
+            mean_return: None,
         };
         let got = best([
             v(100, 0.6, 0.2),
@@ -347,6 +375,7 @@ mod tests {
             collision: 1.0 - s,
             disc: Some(d),
             nav_time_s: Some(12.0),
+            mean_return: None,
         };
         let runs = [
             v(1000, 0.99, 0.01), // before the decay ends: not a candidate
@@ -412,5 +441,43 @@ mod tests {
             run_policy(run, Some(Select::BestValidation)).unwrap(),
             snapshot_path(run, 100)
         );
+    }
+
+    /// `best-return` takes the highest validation return after the ε decay (ties: the later),
+    /// whatever the success or Disc.; before the decay nothing counts; without returns (old
+    /// logs) it is `best`. Fails when the rule is ignored: `low-disc` and `best` choose other
+    /// validations here.
+    #[test]
+    fn best_return_is_the_highest_validation_return_after_the_decay() {
+        let v = |ep, s, d, r| Validation {
+            rl_episodes: ep,
+            success: s,
+            collision: 1.0 - s,
+            disc: Some(d),
+            nav_time_s: Some(12.0),
+            mean_return: Some(r),
+        };
+        let runs = [
+            v(1000, 1.00, 0.01, 0.99), // before the decay ends: not a candidate
+            v(2000, 1.00, 0.02, 0.90), // the gentlest and first at 1.00
+            v(2500, 0.98, 0.05, 0.93),
+            v(3000, 0.99, 0.04, 0.93), // ties with 2500: the later wins
+            v(3500, 0.97, 0.06, 0.91),
+        ];
+        let got = |rule| choose(rule, runs.clone(), 2000).map(|c| c.rl_episodes);
+        assert_eq!(got(Select::BestReturn), Some(3000));
+        assert_eq!(got(Select::LowDisc), Some(2000));
+        assert_eq!(got(Select::BestValidation), Some(1000));
+        let old = runs.map(|r| Validation {
+            mean_return: None,
+            ..r
+        });
+        assert_eq!(best_return(old, 2000).unwrap().rl_episodes, 1000);
+        assert_eq!(best_return([], 0), None);
+        // A return that is not a number makes the line unreadable, never chosen.
+        let (read, skipped) = validations(
+            r#"{"phase":"validation","episode":2000,"success_rate":1.0,"collision_rate":0.0,"mean_return":1e999}"#,
+        );
+        assert!(read.is_empty() && skipped == 1, "{read:?}");
     }
 }

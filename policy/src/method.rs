@@ -387,6 +387,21 @@ pub enum Select {
     /// [`LOW_DISC_MIN_SUCCESS`], the one with the lowest Disc. (ties: the later); without one,
     /// as `BestValidation`. Keeps every validation's weights, validation seeds only.
     LowDisc,
+    /// The validation with the highest mean return (the method's own reward, which weighs
+    /// success, collisions, discomfort and time) among those at or after the end of the ε
+    /// decay (ties: the later); without one, as `BestValidation` (Experiment 27). Keeps every
+    /// validation's weights, validation seeds only.
+    BestReturn,
+}
+
+impl Select {
+    /// Every rule, in the order the docs list them.
+    pub const ALL: [Select; 4] = [
+        Select::Last,
+        Select::BestValidation,
+        Select::LowDisc,
+        Select::BestReturn,
+    ];
 }
 
 /// The validation success a snapshot needs to be chosen by [`Select::LowDisc`] (issue 15's
@@ -400,6 +415,7 @@ impl Select {
             Select::Last => "last",
             Select::BestValidation => "best-validation",
             Select::LowDisc => "low-disc",
+            Select::BestReturn => "best-return",
         }
     }
 }
@@ -829,7 +845,7 @@ mod tests {
             p.len() == 1 && p[0].contains("\"low-disc\" needs validations"),
             "{p:?}"
         );
-        for rule in [Select::Last, Select::BestValidation, Select::LowDisc] {
+        for rule in Select::ALL {
             let parsed: Select =
                 serde::de::Deserialize::deserialize(serde::de::value::StrDeserializer::<
                     serde::de::value::Error,
