@@ -327,9 +327,11 @@ mod tests {
                 false
             )
         );
-        assert!(toml::to_string(&r.file)
-            .unwrap()
-            .contains("planning_top_k = 8"));
+        let text = toml::to_string(&r.file).unwrap();
+        assert!(
+            text.contains("planning_top_k = 8") && text.contains("select = \"best-return\""),
+            "{text}"
+        );
         c.train.planning_top_k = 3;
         assert_eq!(
             c.clone()

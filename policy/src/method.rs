@@ -36,7 +36,8 @@ pub enum Method {
     /// Beyond the paper: FSRL's network, reward and training, deciding by depth-2 planning
     /// ([`FSRL_PLAN_TOP_K`] first steps, [`FSRL_PLAN_BREADTH`] second steps each) wherever it
     /// decides greedily (validation, evaluation, `fsrl serve`); its actors explore with the
-    /// paper's one-step lookahead (docs/REPRODUCTION.md, Experiments 21–24).
+    /// paper's one-step lookahead, and the run's policy is its `best-return` snapshot
+    /// (docs/REPRODUCTION.md, Experiments 21–27).
     #[serde(rename = "fsrl-plan")]
     FsrlPlan,
 }
@@ -76,14 +77,16 @@ impl Method {
     }
 
     /// The training config this method runs with: `base`, with `fsrl-plan`'s decision-time
-    /// planning when `base` asks for none (`train.planning_top_k = 0`); a config that sets
-    /// its own planning keeps it. Every other method: `base` unchanged.
+    /// planning and snapshot choice (`best-return`, Experiment 27) when `base` asks for no
+    /// planning (`train.planning_top_k = 0`); a config that sets its own planning keeps it and
+    /// its own choice. Every other method: `base` unchanged.
     pub fn train_config(self, base: &TrainConfig) -> TrainConfig {
         let mut cfg = base.clone();
         if self == Method::FsrlPlan && cfg.planning_top_k == 0 {
             cfg.planning_top_k = FSRL_PLAN_TOP_K;
             cfg.planning_breadth = FSRL_PLAN_BREADTH;
             cfg.planning_in_training = false;
+            cfg.select = Select::BestReturn;
         }
         cfg
     }
@@ -754,6 +757,7 @@ mod tests {
             (t.planning_top_k, t.planning_breadth, t.planning_in_training),
             (FSRL_PLAN_TOP_K, FSRL_PLAN_BREADTH, false)
         );
+        assert_eq!(t.select, Select::BestReturn);
         assert!(t.problems().is_empty());
         let mut own = base.clone();
         own.planning_top_k = 3;
