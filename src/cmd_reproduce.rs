@@ -121,6 +121,11 @@ pub fn grid(args: &ReproduceArgs) -> anyhow::Result<Grid> {
         }
         None => {}
     }
+    if !args.single_process {
+        // `fsrl train`'s choice for a distributed run (Experiments 26–27), so that a finished
+        // run is compared with what it was trained with.
+        file.distributed_select();
+    }
     if args.single_process && file.train.rl.replay_ratio.is_some() {
         problems.push(
             "train.rl.replay_ratio (the adaptive mode) needs distributed runs; --single-process trains the fixed schedule: drop one of the two".to_string(),
@@ -619,6 +624,7 @@ mod tests {
         file.run.setting = "env1-invisible".into();
         let mut resolved = file.resolve(Vec::new()).unwrap();
         resolved.file.train.rl.replay_ratio = Some(policy::method::ReplayRatio::LOCAL_DEFAULT);
+        resolved.file.train.select = policy::method::Select::DISTRIBUTED_DEFAULT;
         std::fs::write(
             dir.join("config.toml"),
             toml::to_string(&resolved.file).unwrap(),

@@ -237,6 +237,7 @@ fn distributed(args: TrainArgs) -> anyhow::Result<()> {
         .unwrap_or_else(|| resolved.default_run_dir());
     let (ratio, whence) = distributed_replay_ratio(&args, &resolved, &out)?;
     resolved.file.train.rl.replay_ratio = ratio;
+    resolved.file.train.select = distributed_select(&args, &resolved, &out)?;
     // The schedule with its ratio, before anything is written or started (a bad ratio would
     // otherwise start every process and be refused by the learner).
     check_train(&resolved.file.train, &whence)?;
@@ -263,6 +264,29 @@ fn distributed(args: TrainArgs) -> anyhow::Result<()> {
         tensorboard: !args.no_tensorboard,
     };
     launch::local::run(launch, &stop)
+}
+
+/// The snapshot choice of a distributed run: on `--resume`, the one the run was started with
+/// (its `config.toml`); else the config's own `[train] select` or the method's, else
+/// [`Select::DISTRIBUTED_DEFAULT`] (Experiments 26–27).
+fn distributed_select(
+    args: &TrainArgs,
+    resolved: &Resolved,
+    out: &std::path::Path,
+) -> anyhow::Result<Select> {
+    let started = out.join("config.toml");
+    if args.resume && started.exists() {
+        let file = crate::config::FileConfig::load(Some(&started)).with_context(|| {
+            format!(
+                "{} (the run's own config) is not readable",
+                started.display()
+            )
+        })?;
+        return Ok(file.train.select);
+    }
+    let mut file = resolved.file.clone();
+    file.distributed_select();
+    Ok(file.train.select)
 }
 
 /// The replay ratio of a distributed run: `--replay-ratio` if given; on `--resume`, the one the
@@ -469,6 +493,36 @@ mod tests {
 
     fn args(extra: &[&str]) -> TrainArgs {
         try_args(extra).unwrap()
+    }
+
+    /// A distributed run chooses by `best-return` unless its config (or its method) chooses,
+    /// and a resumed run by the rule it was started with (Experiments 26–27).
+    #[test]
+    fn a_distributed_runs_choice_comes_from_its_own_config_the_file_the_method_or_the_default() {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("run");
+        let o = out.to_str().unwrap();
+        let select = |a: &TrainArgs| distributed_select(a, &resolve(a).unwrap(), &out).unwrap();
+        assert_eq!(select(&args(&["--out", o])), Select::DISTRIBUTED_DEFAULT);
+        assert_eq!(Select::DISTRIBUTED_DEFAULT, Select::BestReturn);
+        let cfg = dir.path().join("c.toml");
+        std::fs::write(&cfg, "[train]\nselect = \"low-disc\"\n").unwrap();
+        let c = cfg.to_str().unwrap();
+        assert_eq!(select(&args(&["--out", o, "--config", c])), Select::LowDisc);
+        let plan = args(&["--out", o, "--config", c, "--method", "fsrl-plan"]);
+        assert_eq!(
+            select(&plan),
+            Select::LowDisc,
+            "the file's own choice stays"
+        );
+        assert_eq!(
+            select(&args(&["--out", o, "--method", "fsrl-plan"])),
+            Select::BestReturn
+        );
+        // A run started with low-disc resumes with it.
+        std::fs::create_dir_all(&out).unwrap();
+        std::fs::copy(&cfg, out.join("config.toml")).unwrap();
+        assert_eq!(select(&args(&["--out", o, "--resume"])), Select::LowDisc);
     }
 
     #[test]

@@ -404,6 +404,16 @@ fn the_live_page_follows_a_run_in_a_real_browser() {
         table.contains("actor-1=false") && table.contains("actor-0=true"),
         "{table}"
     );
+    // The killed actor's state column says what it was, not what it is; the live one's is
+    // its state.
+    let shown = b.eval(
+        "[...document.querySelectorAll('#processes tr')].map(r => r.dataset.sender + '=' + r.querySelector('td.state').textContent).join(' ')",
+    );
+    let shown = shown.as_str().unwrap();
+    assert!(
+        shown.contains("actor-1=was ") && !shown.contains("actor-0=was "),
+        "{shown}"
+    );
     // The processes' states, from their heartbeats; the page shows this run only.
     let states = b.eval(
         "[...document.querySelectorAll('#processes tr')].map(r => r.dataset.run + '/' + r.dataset.sender + '=' + r.dataset.state).join(' ')",

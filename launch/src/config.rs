@@ -30,6 +30,10 @@ pub fn run_checkpoint(dir: &Path, resume: bool) -> anyhow::Result<std::path::Pat
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct FileConfig {
+    /// Whether the file said `[train] select` itself (a distributed run's default choice is
+    /// not `TrainConfig`'s: `Select::DISTRIBUTED_DEFAULT`). Not a key of the file.
+    #[serde(skip)]
+    pub train_select_given: bool,
     pub run: RunSection,
     /// The simulator (SPEC §2–3).
     pub sim: SimConfig,
@@ -211,6 +215,11 @@ impl FileConfig {
             .with_context(|| format!("cannot read config file {}", path.display()))?;
         let mut f: Self = toml::from_str(&text)
             .with_context(|| format!("invalid config file {}", path.display()))?;
+        f.train_select_given = toml::from_str::<toml::Table>(&text).is_ok_and(|t| {
+            t.get("train")
+                .and_then(|t| t.as_table())
+                .is_some_and(|t| t.contains_key("select"))
+        });
         // Certificates and password files named relative to the config file's directory
         // (secrets: `$CREDENTIALS_DIRECTORY` first, for systemd `LoadCredential=`).
         // (Absolute, so that a resolved config written elsewhere, e.g. by `fsrl train`, still
@@ -223,6 +232,14 @@ impl FileConfig {
         Ok(f)
     }
 
+    /// Applies a distributed run's default choice ([`Select::DISTRIBUTED_DEFAULT`]) unless the
+    /// file chose itself or the method's preset did (`fsrl-plan`).
+    pub fn distributed_select(&mut self) {
+        if !self.train_select_given && self.train.select == TrainConfig::default().select {
+            self.train.select = policy::method::Select::DISTRIBUTED_DEFAULT;
+        }
+    }
+
     /// Validates everything at once.
     /// A method's own training settings (`fsrl-plan`'s planning: `Method::train_config`) are
     /// written into the resolved `[train]`, so that the run's config, checkpoints and model
@@ -231,7 +248,12 @@ impl FileConfig {
         let mut problems = extra_problems;
         let method = match self.run.method.parse::<Method>() {
             Ok(m) => {
+                // A choice the file makes itself stays.
+                let select = self.train.select;
                 self.train = m.train_config(&self.train);
+                if self.train_select_given {
+                    self.train.select = select;
+                }
                 Some(m)
             }
             Err(e) => {

@@ -398,6 +398,11 @@ pub enum Select {
 }
 
 impl Select {
+    /// What a distributed `fsrl train` and `fsrl reproduce` choose by when the config does not
+    /// say (Experiments 26–27: `low-disc` picks the adaptive runs' timid snapshot after the ε
+    /// decay); `--single-process` keeps [`TrainConfig`]'s default, `low-disc`, bit for bit.
+    pub const DISTRIBUTED_DEFAULT: Select = Select::BestReturn;
+
     /// Every rule, in the order the docs list them.
     pub const ALL: [Select; 4] = [
         Select::Last,

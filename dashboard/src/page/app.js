@@ -294,7 +294,8 @@ function draw() {
     const dot = document.createElement("span");
     dot.className = "dot " + (p.up ? "up" : "down");
     alive.prepend(dot);
-    cell(tr, p.state ? p.state : "–", "state " + p.state);
+    // A process that is gone is no longer in its last state: say it was.
+    cell(tr, p.state ? (p.up === false ? "was " + p.state : p.state) : "–", "state " + p.state);
     cell(tr, p.episodes === null ? "–" : String(p.episodes));
     cell(tr, p.metricsAt ? ago(p.metricsAt) : "–");
     cell(tr, p.error ? `${p.error} (${ago(p.errorAt)})` : "", "err");
