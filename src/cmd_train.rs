@@ -266,6 +266,25 @@ fn distributed(args: TrainArgs) -> anyhow::Result<()> {
     launch::local::run(launch, &stop)
 }
 
+/// On `--resume`, the config the run was started with (its `config.toml`), if it has one.
+fn started_config(
+    args: &TrainArgs,
+    out: &std::path::Path,
+) -> anyhow::Result<Option<crate::config::FileConfig>> {
+    let started = out.join("config.toml");
+    if !(args.resume && started.exists()) {
+        return Ok(None);
+    }
+    crate::config::FileConfig::load(Some(&started))
+        .with_context(|| {
+            format!(
+                "{} (the run's own config) is not readable",
+                started.display()
+            )
+        })
+        .map(Some)
+}
+
 /// The snapshot choice of a distributed run: on `--resume`, the one the run was started with
 /// (its `config.toml`); else the config's own `[train] select` or the method's, else
 /// [`Select::DISTRIBUTED_DEFAULT`] (Experiments 26–27).
@@ -274,14 +293,7 @@ fn distributed_select(
     resolved: &Resolved,
     out: &std::path::Path,
 ) -> anyhow::Result<Select> {
-    let started = out.join("config.toml");
-    if args.resume && started.exists() {
-        let file = crate::config::FileConfig::load(Some(&started)).with_context(|| {
-            format!(
-                "{} (the run's own config) is not readable",
-                started.display()
-            )
-        })?;
+    if let Some(file) = started_config(args, out)? {
         return Ok(file.train.select);
     }
     let mut file = resolved.file.clone();
@@ -301,17 +313,10 @@ fn distributed_replay_ratio(
     if let Some(ReplayRatioArg(r)) = args.replay_ratio {
         return Ok((r, "--replay-ratio".into()));
     }
-    let started = out.join("config.toml");
-    if args.resume && started.exists() {
-        let file = crate::config::FileConfig::load(Some(&started)).with_context(|| {
-            format!(
-                "{} (the run's own config) is not readable",
-                started.display()
-            )
-        })?;
+    if let Some(file) = started_config(args, out)? {
         let whence = format!(
             "{} (the run's own config; --replay-ratio overrides it)",
-            started.display()
+            out.join("config.toml").display()
         );
         return Ok((file.train.rl.replay_ratio, whence));
     }

@@ -546,6 +546,34 @@ mod tests {
             .collect()
     }
 
+    /// `planned` is the argmax of the depth-2 values written out by hand (ties to the lower
+    /// action), with that value.
+    fn assert_is_the_best_by_hand(planned: Decision, by_hand: &[f64], seed: u64) {
+        let best = by_hand
+            .iter()
+            .copied()
+            .enumerate()
+            .fold(
+                (0, f64::NEG_INFINITY),
+                |b, (a, v)| if v > b.1 { (a, v) } else { b },
+            );
+        assert_eq!(planned.action, best.0, "seed {seed}");
+        assert!(
+            (planned.value - best.1).abs() < 1e-9,
+            "{} vs {}",
+            planned.value,
+            best.1
+        );
+    }
+
+    /// The actions of `la`'s last decision, best one-step value first (ties to the lower index).
+    fn one_step_ranking(la: &Lookahead) -> Vec<usize> {
+        let mut ranked: Vec<(f64, usize)> =
+            la.last_values().enumerate().map(|(a, v)| (v, a)).collect();
+        ranked.sort_by(|x, y| y.0.total_cmp(&x.0).then(x.1.cmp(&y.1)));
+        ranked.into_iter().map(|(_, a)| a).collect()
+    }
+
     /// Planning over every first step decides the argmax of the depth-2 values written out by
     /// hand, with that value; planning off (k = 0) decides exactly as the paper's lookahead.
     /// Fails when `with_planning` is ignored: the one-step decision's value is not the depth-2
@@ -567,17 +595,7 @@ mod tests {
             for _ in 0..4 {
                 let by_hand = depth_two_by_hand(&env, &net, 0.9, None);
                 let planned = all.decide(&mut env, &net).unwrap();
-                let best = by_hand.iter().copied().enumerate().fold(
-                    (0, f64::NEG_INFINITY),
-                    |b, (a, v)| if v > b.1 { (a, v) } else { b },
-                );
-                assert_eq!(planned.action, best.0, "seed {seed}");
-                assert!(
-                    (planned.value - best.1).abs() < 1e-9,
-                    "{} vs {}",
-                    planned.value,
-                    best.1
-                );
+                assert_is_the_best_by_hand(planned, &by_hand, seed);
                 let one_step = paper.decide(&mut env, &net).unwrap();
                 let k0 = off.decide(&mut env, &net).unwrap();
                 assert_eq!(one_step, k0);
@@ -633,14 +651,9 @@ mod tests {
                 let d3 = three.decide(&mut env, &net).unwrap();
                 let d0 = paper.decide(&mut env, &net).unwrap();
                 assert_eq!(d1.action, d0.action);
-                let mut ranked: Vec<(f64, usize)> = paper
-                    .last_values()
-                    .enumerate()
-                    .map(|(a, v)| (v, a))
-                    .collect();
-                ranked.sort_by(|x, y| y.0.total_cmp(&x.0).then(x.1.cmp(&y.1)));
+                let ranked = one_step_ranking(&paper);
                 assert!(
-                    ranked.iter().take(3).any(|&(_, a)| a == d3.action),
+                    ranked.iter().take(3).any(|&a| a == d3.action),
                     "{} not in {:?}",
                     d3.action,
                     &ranked[..3]
@@ -678,26 +691,11 @@ mod tests {
             env.reset(seed).unwrap();
             for _ in 0..4 {
                 paper.decide(&mut env, &net).unwrap();
-                let mut ranked: Vec<(f64, usize)> = paper
-                    .last_values()
-                    .enumerate()
-                    .map(|(a, v)| (v, a))
-                    .collect();
-                ranked.sort_by(|x, y| y.0.total_cmp(&x.0).then(x.1.cmp(&y.1)));
-                let subset: Vec<usize> = ranked.iter().take(4).map(|&(_, a)| a).collect();
+                let ranked = one_step_ranking(&paper);
+                let subset: Vec<usize> = ranked.iter().take(4).copied().collect();
                 let by_hand = depth_two_by_hand(&env, &net, 0.9, Some(&subset));
-                let best = by_hand.iter().copied().enumerate().fold(
-                    (0, f64::NEG_INFINITY),
-                    |b, (a, v)| if v > b.1 { (a, v) } else { b },
-                );
                 let planned = narrow.decide(&mut env, &net).unwrap();
-                assert_eq!(planned.action, best.0, "seed {seed}");
-                assert!(
-                    (planned.value - best.1).abs() < 1e-9,
-                    "{} vs {}",
-                    planned.value,
-                    best.1
-                );
+                assert_is_the_best_by_hand(planned, &by_hand, seed);
                 let everything = full.decide(&mut env, &net).unwrap();
                 assert_eq!(wide.decide(&mut env, &net).unwrap(), everything);
                 differ += usize::from((everything.value - planned.value).abs() > 1e-12);
