@@ -454,14 +454,34 @@ pub fn run(launch: Launch, stop: &AtomicBool) -> anyhow::Result<()> {
     if !learner_exit.success() {
         failed.push(format!("learner ({learner_exit})"));
     }
+    // An actor or evaluator that started after a short run's learner had already finished
+    // waits for a learner that never comes: once an actor could have left (a finished run's
+    // actors leave at once) or the evaluator finished a last validation, it is told to stop.
+    let waited_from = Instant::now();
     for (name, child) in children.list.iter_mut().skip(1) {
-        let deadline = Instant::now() + Duration::from_secs(if interrupted { 20 } else { 3600 });
+        let mut deadline =
+            Instant::now() + Duration::from_secs(if interrupted { 20 } else { 3600 });
+        let grace = Duration::from_secs(if name.starts_with("actor") { 30 } else { 600 });
+        let mut told = false;
         loop {
             if let Some(s) = child.try_wait()? {
-                if !s.success() && !interrupted {
+                if told {
+                    failed.push(format!(
+                        "{name} (still waiting for the learner {} s after it finished; stopped)",
+                        grace.as_secs()
+                    ));
+                } else if !s.success() && !interrupted {
                     failed.push(format!("{name} ({s})"));
                 }
                 break;
+            }
+            if !interrupted && !told && waited_from.elapsed() > grace {
+                told = true;
+                deadline = deadline.min(Instant::now() + Duration::from_secs(20));
+                // SAFETY: signalling our own child.
+                unsafe {
+                    libc::kill(child.id() as libc::pid_t, libc::SIGINT);
+                }
             }
             if Instant::now() > deadline {
                 let _ = child.kill();
