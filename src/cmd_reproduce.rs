@@ -124,7 +124,7 @@ pub fn grid(args: &ReproduceArgs) -> anyhow::Result<Grid> {
     if !args.single_process {
         // `fsrl train`'s choice for a distributed run (Experiments 26–27), so that a finished
         // run is compared with what it was trained with.
-        file.distributed_select();
+        file.train.select = file.distributed_select();
     }
     if args.single_process && file.train.rl.replay_ratio.is_some() {
         problems.push(

@@ -296,9 +296,7 @@ fn distributed_select(
     if let Some(file) = started_config(args, out)? {
         return Ok(file.train.select);
     }
-    let mut file = resolved.file.clone();
-    file.distributed_select();
-    Ok(file.train.select)
+    Ok(resolved.file.distributed_select())
 }
 
 /// The replay ratio of a distributed run: `--replay-ratio` if given; on `--resume`, the one the

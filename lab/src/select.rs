@@ -106,16 +106,29 @@ pub fn low_disc(
     candidates: impl IntoIterator<Item = Validation>,
     from_episode: u64,
 ) -> Option<Validation> {
+    highest_later(candidates, |v| {
+        good_after(v, from_episode, LOW_DISC_MIN_SUCCESS)
+            .then_some(v.disc)
+            .flatten()
+            .map(|d| -d)
+    })
+}
+
+/// The candidate with the highest `key` (ties: the later; `None`: not a candidate); without
+/// one, [`best`] of them all. [`low_disc`] and [`best_return`] both choose this way.
+fn highest_later(
+    candidates: impl IntoIterator<Item = Validation>,
+    key: impl Fn(&Validation) -> Option<f64>,
+) -> Option<Validation> {
     let all: Vec<Validation> = candidates.into_iter().collect();
-    let gentlest = all
-        .iter()
-        .filter(|v| good_after(v, from_episode, LOW_DISC_MIN_SUCCESS))
-        .filter_map(|v| v.disc.map(|d| (d, v)))
-        .fold(None::<(f64, &Validation)>, |acc, (d, v)| match acc {
-            Some((bd, _)) if d > bd => acc,
-            _ => Some((d, v)),
-        });
-    match gentlest {
+    let top = all.iter().filter_map(|v| key(v).map(|k| (k, v))).fold(
+        None::<(f64, &Validation)>,
+        |acc, (k, v)| match acc {
+            Some((bk, _)) if k < bk => acc,
+            _ => Some((k, v)),
+        },
+    );
+    match top {
         Some((_, v)) => Some(v.clone()),
         None => best(all),
     }
@@ -127,19 +140,11 @@ pub fn best_return(
     candidates: impl IntoIterator<Item = Validation>,
     from_episode: u64,
 ) -> Option<Validation> {
-    let all: Vec<Validation> = candidates.into_iter().collect();
-    let top = all
-        .iter()
-        .filter(|v| v.rl_episodes >= from_episode)
-        .filter_map(|v| v.mean_return.map(|r| (r, v)))
-        .fold(None::<(f64, &Validation)>, |acc, (r, v)| match acc {
-            Some((br, _)) if r < br => acc,
-            _ => Some((r, v)),
-        });
-    match top {
-        Some((_, v)) => Some(v.clone()),
-        None => best(all),
-    }
+    highest_later(candidates, |v| {
+        (v.rl_episodes >= from_episode)
+            .then_some(v.mean_return)
+            .flatten()
+    })
 }
 
 /// The validation `rule` chooses among `candidates` (`None` for [`Select::Last`]).

@@ -232,11 +232,13 @@ impl FileConfig {
         Ok(f)
     }
 
-    /// Applies a distributed run's default choice ([`Select::DISTRIBUTED_DEFAULT`]) unless the
-    /// file chose itself or the method's preset did (`fsrl-plan`).
-    pub fn distributed_select(&mut self) {
+    /// A distributed run's choice: the default one ([`Select::DISTRIBUTED_DEFAULT`]) unless
+    /// the file chose itself or the method's preset did (`fsrl-plan`).
+    pub fn distributed_select(&self) -> policy::method::Select {
         if !self.train_select_given && self.train.select == TrainConfig::default().select {
-            self.train.select = policy::method::Select::DISTRIBUTED_DEFAULT;
+            policy::method::Select::DISTRIBUTED_DEFAULT
+        } else {
+            self.train.select
         }
     }
 
