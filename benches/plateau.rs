@@ -24,6 +24,14 @@
 //! is printed at the end. Configs and seeds: `PLATEAU_CONFIGS` (default
 //! `fixed-4,adaptive-4,adaptive-2,adaptive-1`), `PLATEAU_SEEDS` (default `0,1,2`).
 //!
+//! **Budget mode** (`PLATEAU_BUDGET_S=T`; issue 43, item 4; docs/REPRODUCTION.md, Experiment
+//! 28): every run lasts `T` seconds of RL and is then judged by what it would ship: the
+//! snapshot its own `train.select` rule chooses (with its ε-decay boundary, both read from the
+//! run's checkpoint) among the validations the evaluator made within those `T` seconds, tested
+//! on the 500 test seeds (success, timeouts, Nav. Time, Disc.). No plateau search. Results go to
+//! `docs/results/budget/<method>-<T>s/` unless `PLATEAU_OUT` says otherwise.
+//! `PLATEAU_METHOD` (default `fsrl`) is the method the runs train, in both modes.
+//!
 //! Needs root, `ip netns` and a CPU cgroup controller; skips with a message otherwise. About
 //! 13 minutes per run plus the tests of its snapshots, and nothing else should run meanwhile.
 //! `cargo bench --workspace --bench plateau`
@@ -39,6 +47,7 @@ use mh::budget::{self, actor_hub_addr};
 use mh::cgroup::CpuGroup;
 use mh::{adapt_actor_config, adapt_deploy_config, router_args_for_run, table, Hosts, Procs};
 use multihost_support as mh;
+use policy::method::Method;
 
 const LEARNER_CORES: f64 = 0.75;
 const ACTOR_CORES: f64 = 0.2;
@@ -55,12 +64,36 @@ fn fsrl() -> &'static Path {
     Path::new(env!("CARGO_BIN_EXE_fsrl"))
 }
 
-/// Where the results go: `PLATEAU_OUT`, by default `docs/results/plateau`.
+/// Where the results go: `PLATEAU_OUT`, by default `docs/results/plateau` (budget mode:
+/// `docs/results/budget/<method>-<T>s`).
 fn results_dir() -> PathBuf {
+    let default = match budget() {
+        Some(t) => format!("docs/results/budget/{}-{}s", method().name(), t.as_secs()),
+        None => "docs/results/plateau".to_string(),
+    };
     std::env::var_os("PLATEAU_OUT").map_or_else(
-        || Path::new(env!("CARGO_MANIFEST_DIR")).join("docs/results/plateau"),
+        || Path::new(env!("CARGO_MANIFEST_DIR")).join(default),
         PathBuf::from,
     )
+}
+
+/// The method the runs train: `PLATEAU_METHOD`, by default `fsrl` (Experiment 17's).
+fn method() -> Method {
+    std::env::var("PLATEAU_METHOD").map_or(Method::Fsrl, |m| {
+        m.parse()
+            .unwrap_or_else(|e| panic!("PLATEAU_METHOD: bad method `{m}`: {e}"))
+    })
+}
+
+/// Budget mode's wall-clock budget: `PLATEAU_BUDGET_S` (unset: the plateau mode).
+fn budget() -> Option<Duration> {
+    std::env::var("PLATEAU_BUDGET_S").ok().map(|s| {
+        let t: u64 = s
+            .parse()
+            .unwrap_or_else(|_| panic!("PLATEAU_BUDGET_S: whole seconds, not `{s}`"));
+        assert!(t > 0, "PLATEAU_BUDGET_S: a budget of 0 s trains nothing");
+        Duration::from_secs(t)
+    })
 }
 
 /// One run's shape: the fixed schedule or the adaptive mode, and the actor hosts.
@@ -121,12 +154,15 @@ fn main() {
                 .unwrap_or_else(|_| panic!("PLATEAU_SEEDS: bad seed `{s}`"))
         })
         .collect();
-    let cap = Duration::from_secs(
-        std::env::var("PLATEAU_CAP_S")
-            .ok()
-            .map(|s| s.parse().expect("PLATEAU_CAP_S: seconds"))
-            .unwrap_or(720),
-    );
+    let cap = budget().unwrap_or_else(|| {
+        Duration::from_secs(
+            std::env::var("PLATEAU_CAP_S")
+                .ok()
+                .map(|s| s.parse().expect("PLATEAU_CAP_S: seconds"))
+                .unwrap_or(720),
+        )
+    });
+    let method = method();
     let out = results_dir();
     std::fs::create_dir_all(&out).unwrap();
     let todo: Vec<(u64, Config)> = seeds
@@ -145,9 +181,10 @@ fn main() {
         let (hosts, actor_hosts) =
             budget::make_hosts("p", 4, secrets.path()).expect("making the emulated hosts");
         for (seed, config) in todo {
-            let warm = warm_start(&work, seed);
+            let warm = warm_start(&work, method, seed);
             eprintln!(
-                "plateau: {} seed {seed} (cap {} s)",
+                "plateau: {} {} seed {seed} (cap {} s)",
+                method.name(),
                 config.name(),
                 cap.as_secs()
             );
@@ -157,6 +194,7 @@ fn main() {
                 secrets.path(),
                 &work,
                 &warm,
+                method,
                 seed,
                 config,
                 cap,
@@ -175,17 +213,19 @@ fn run_id(seed: u64) -> String {
     format!("plateau-s{seed}")
 }
 
-/// The warm start of `seed` (trained once, on the whole machine): its checkpoint.
-fn warm_start(work: &Path, seed: u64) -> PathBuf {
-    let dir = work.join(format!("warm-s{seed}")).join(run_id(seed));
+/// The warm start of `method` and `seed` (trained once, on the whole machine): its checkpoint.
+fn warm_start(work: &Path, method: Method, seed: u64) -> PathBuf {
+    let dir = work
+        .join(format!("warm-{}-s{seed}", method.name()))
+        .join(run_id(seed));
     let ckpt = dir.join("checkpoints/latest.ckpt");
     if ckpt.exists() {
         return ckpt;
     }
     let _ = std::fs::remove_dir_all(&dir);
-    eprintln!("plateau: warm start of seed {seed}");
+    eprintln!("plateau: warm start of {} seed {seed}", method.name());
     let o = Command::new(fsrl())
-        .args(["train", "--single-process", "--method", "fsrl"])
+        .args(["train", "--single-process", "--method", method.name()])
         .args(["--setting", "env1-invisible", "--seed", &seed.to_string()])
         .args(["--rl-episodes", "0", "--eval-episodes", "1", "--out"])
         .arg(&dir)
@@ -199,10 +239,17 @@ fn warm_start(work: &Path, seed: u64) -> PathBuf {
     ckpt
 }
 
-fn config_edit(t: &mut toml::Table, seed: u64, config: Config, endpoint: &str, run_dir: &Path) {
+fn config_edit(
+    t: &mut toml::Table,
+    method: Method,
+    seed: u64,
+    config: Config,
+    endpoint: &str,
+    run_dir: &Path,
+) {
     let r = table(t, &["run"]);
     r.insert("id".into(), run_id(seed).into());
-    r.insert("method".into(), "fsrl".into());
+    r.insert("method".into(), method.name().into());
     r.insert("setting".into(), "env1-invisible".into());
     r.insert("seed".into(), (seed as i64).into());
     let z = table(t, &["transport", "zenoh"]);
@@ -254,8 +301,32 @@ struct Validation {
     test_success: Option<f64>,
 }
 
+/// Test metrics of one policy on the 500 test seeds of env1-invisible.
+#[derive(serde::Serialize, serde::Deserialize)]
+struct Tested {
+    success: f64,
+    collision: f64,
+    timeout: f64,
+    nav_time_s: Option<f64>,
+    disc: f64,
+}
+
+/// Budget mode: the snapshot the run's own rule ships at the budget, and its test.
+#[derive(serde::Serialize, serde::Deserialize)]
+struct Shipped {
+    /// The run's `train.select` rule and the end of its ε decay (RL episodes).
+    select: String,
+    epsilon_decay_episodes: u64,
+    episode: u64,
+    validation_success: f64,
+    test: Tested,
+}
+
 #[derive(serde::Serialize, serde::Deserialize)]
 struct RunResult {
+    /// Absent in Experiment 17's files: FSRL.
+    #[serde(default)]
+    method: Option<String>,
     config: String,
     seed: u64,
     cap_s: f64,
@@ -272,6 +343,9 @@ struct RunResult {
     /// Time to the plateau (s of the learner's clock), if reached within the cap.
     plateau_s: Option<f64>,
     plateau_episode: Option<u64>,
+    /// Budget mode's shipped policy (absent in the plateau mode).
+    #[serde(default)]
+    shipped: Option<Shipped>,
 }
 
 #[allow(clippy::too_many_arguments)]
@@ -281,6 +355,7 @@ fn run(
     secrets: &Path,
     work: &Path,
     warm: &Path,
+    method: Method,
     seed: u64,
     config: Config,
     cap: Duration,
@@ -314,7 +389,7 @@ fn run(
     std::thread::sleep(Duration::from_millis(500));
     let cfg = |deploy: &str, out: &str, endpoint: String| {
         adapt_deploy_config(deploy, secrets, out, |t| {
-            config_edit(t, seed, config, &endpoint, &run_dir)
+            config_edit(t, method, seed, config, &endpoint, &run_dir)
         })
     };
     let learner_cfg = cfg(
@@ -351,6 +426,7 @@ fn run(
             adapt_actor_config(k as u32, secrets, &format!("{name}-actor{k}.toml"), |t| {
                 config_edit(
                     t,
+                    method,
                     seed,
                     config,
                     &format!("tls/{}:7447", actor_hub_addr(k)),
@@ -425,12 +501,16 @@ fn run(
         })
         .collect();
     let (mut plateau_s, mut plateau_episode) = (None, None);
-    for v in &mut validations {
+    let shipped = match budget() {
+        Some(_) => Some(shipped_at_budget(&loaded.core, &log, &eval_dir, &run_dir)?),
+        None => None,
+    };
+    for v in validations.iter_mut().filter(|_| shipped.is_none()) {
         if v.success < VALIDATION_BAR {
             continue;
         }
         let snapshot = learner::model::snapshot_path(&eval_dir, v.episode);
-        let test = test_success(&snapshot, &run_dir)?;
+        let test = test(&snapshot, &run_dir)?.success;
         eprintln!(
             "plateau: {name}: episode {} validation {:.2} test {test:.3}",
             v.episode, v.success
@@ -444,6 +524,7 @@ fn run(
     }
     let rl_episodes = c.rl_episodes;
     Ok(RunResult {
+        method: Some(method.name().to_string()),
         config: config.name(),
         seed,
         cap_s: cap.as_secs_f64(),
@@ -459,11 +540,47 @@ fn run(
         validations,
         plateau_s,
         plateau_episode,
+        shipped,
     })
 }
 
-/// Test success of a snapshot on the 500 test seeds of env1-invisible (`fsrl eval`).
-fn test_success(snapshot: &Path, run_dir: &Path) -> Result<f64, String> {
+/// Budget mode: the snapshot the run's own `train.select` chooses among the evaluator's
+/// validations (`log`, all made within the budget, as the run stopped there), tested.
+fn shipped_at_budget(
+    core: &learner::LearnerCore,
+    log: &str,
+    eval_dir: &Path,
+    run_dir: &Path,
+) -> Result<Shipped, String> {
+    let rule = core.config().select;
+    let decay = core.config().rl.epsilon_decay_episodes;
+    let (all, _) = lab::select::validations(log);
+    let on_disk = all
+        .into_iter()
+        .filter(|v| learner::model::snapshot_path(eval_dir, v.rl_episodes).exists());
+    let v = lab::select::choose(rule, on_disk, decay)
+        .ok_or_else(|| format!("`{}` chose no validation snapshot", rule.name()))?;
+    let snapshot = learner::model::snapshot_path(eval_dir, v.rl_episodes);
+    let test = test(&snapshot, run_dir)?;
+    eprintln!(
+        "plateau: shipped at the budget: episode {} ({}), validation {:.2}, test {:.3} success {:.3} timeouts",
+        v.rl_episodes,
+        rule.name(),
+        v.success,
+        test.success,
+        test.timeout
+    );
+    Ok(Shipped {
+        select: rule.name().to_string(),
+        epsilon_decay_episodes: decay,
+        episode: v.rl_episodes,
+        validation_success: v.success,
+        test,
+    })
+}
+
+/// A snapshot's test on the 500 test seeds of env1-invisible (`fsrl eval`).
+fn test(snapshot: &Path, run_dir: &Path) -> Result<Tested, String> {
     let out = run_dir.join("test");
     let o = Command::new(fsrl())
         .arg("eval")
@@ -483,19 +600,19 @@ fn test_success(snapshot: &Path, run_dir: &Path) -> Result<f64, String> {
         &std::fs::read_to_string(out.join("eval.json")).map_err(|e| e.to_string())?,
     )
     .map_err(|e| e.to_string())?;
-    find_success(&report).ok_or_else(|| format!("no success rate in {}", out.display()))
-}
-
-/// The first `success` in `fsrl eval`'s report (one subject, one setting).
-fn find_success(v: &serde_json::Value) -> Option<f64> {
-    match v {
-        serde_json::Value::Object(m) => m
-            .get("success")
-            .and_then(|x| x.as_f64())
-            .or_else(|| m.values().find_map(find_success)),
-        serde_json::Value::Array(a) => a.iter().find_map(find_success),
-        _ => None,
-    }
+    let row = &report["subjects"][0]["settings"][0];
+    let num = |k: &str| {
+        row[k]
+            .as_f64()
+            .ok_or_else(|| format!("no `{k}` in {}", out.join("eval.json").display()))
+    };
+    Ok(Tested {
+        success: num("success")?,
+        collision: num("collision")?,
+        timeout: num("timeout")?,
+        nav_time_s: row["nav_time_s"].as_f64(),
+        disc: num("disc")?,
+    })
 }
 
 fn print_table(dir: &Path) {
@@ -506,6 +623,30 @@ fn print_table(dir: &Path) {
         .filter_map(|e| serde_json::from_str(&std::fs::read_to_string(e.path()).ok()?).ok())
         .collect();
     rows.sort_by(|a, b| (a.config.as_str(), a.seed).cmp(&(b.config.as_str(), b.seed)));
+    if rows.iter().any(|r| r.shipped.is_some()) {
+        println!("\n| method | config | seed | budget (s) | RL episodes | updates/episode | shipped (rule, episode) | validation | test success | timeouts | Nav. Time (s) | Disc. |");
+        println!("|---|---|---|---|---|---|---|---|---|---|---|---|");
+        for r in &rows {
+            let Some(p) = &r.shipped else { continue };
+            println!(
+                "| {} | {} | {} | {:.0} | {} | {:.1} | {} ep {} | {:.2} | {:.3} | {:.3} | {} | {:.3} |",
+                r.method.as_deref().unwrap_or("fsrl"),
+                r.config,
+                r.seed,
+                r.cap_s,
+                r.rl_episodes,
+                r.updates_per_episode,
+                p.select,
+                p.episode,
+                p.validation_success,
+                p.test.success,
+                p.test.timeout,
+                p.test.nav_time_s.map_or("–".into(), |t| format!("{t:.2}")),
+                p.test.disc,
+            );
+        }
+        return;
+    }
     println!("\n| config | seed | RL episodes/s | updates/s | updates/episode | validations | time to plateau (s) | at episode |");
     println!("|---|---|---|---|---|---|---|---|");
     for r in &rows {
