@@ -28,7 +28,8 @@
 //! 28): every run lasts `T` seconds of RL and is then judged by what it would ship: the
 //! snapshot its own `train.select` rule chooses (with its ε-decay boundary, both read from the
 //! run's checkpoint) among the validations the evaluator made within those `T` seconds, tested
-//! on the 500 test seeds (success, timeouts, Nav. Time, Disc.). No plateau search. Results go to
+//! on the 500 test seeds (success, timeouts, Nav. Time, Disc.; the whole `fsrl eval` report
+//! kept as `<config>-s<seed>.eval.json`, for `fsrl compare`). No plateau search. Results go to
 //! `docs/results/budget/<method>-<T>s/` unless `PLATEAU_OUT` says otherwise.
 //! `PLATEAU_METHOD` (default `fsrl`) is the method the runs train, in both modes.
 //!
@@ -562,6 +563,13 @@ fn shipped_at_budget(
         .ok_or_else(|| format!("`{}` chose no validation snapshot", rule.name()))?;
     let snapshot = learner::model::snapshot_path(eval_dir, v.rl_episodes);
     let test = test(&snapshot, run_dir)?;
+    // The whole report beside the run's file, for `fsrl compare` between the arms.
+    let name = run_dir.file_name().unwrap_or_default().to_string_lossy();
+    std::fs::copy(
+        run_dir.join("test/eval.json"),
+        results_dir().join(format!("{name}.eval.json")),
+    )
+    .map_err(|e| format!("keeping the test report: {e}"))?;
     eprintln!(
         "plateau: shipped at the budget: episode {} ({}), validation {:.2}, test {:.3} success {:.3} timeouts",
         v.rl_episodes,
