@@ -448,11 +448,7 @@ fn the_readme_results_are_the_reports_numbers() {
                 .collect()
         })
         .collect();
-    assert_eq!(
-        rows.len(),
-        30,
-        "six settings × four methods and fsrl-plan"
-    );
+    assert_eq!(rows.len(), 30, "six settings × four methods and fsrl-plan");
     let grid = read("docs/results/grid-compare/compare.md");
     // Beyond the paper: fsrl-plan's 18 shipped models (Experiment 25); its report has no paper
     // rows, so its paper columns are FSRL's from the grid's report.
