@@ -18,6 +18,7 @@
 //! streams the learner's metrics; one with an actor's credentials gets none of them.
 
 mod multihost_support;
+mod net_support;
 
 use std::fs::File;
 use std::io::{BufRead, BufReader, Read, Write};
@@ -27,6 +28,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
+use net_support::free_port;
 use proto::{keys, Metrics, Role, RunId, SenderId};
 use serde_json::{json, Value};
 use transport::{Transport, TransportConfig, ZenohConfig};
@@ -262,14 +264,6 @@ fn base64(s: &str) -> Vec<u8> {
         out.extend_from_slice(&n.to_be_bytes()[1..chunk.len()]);
     }
     out
-}
-
-fn free_port() -> u16 {
-    std::net::TcpListener::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port()
 }
 
 /// Waits until the page answers on `port`.

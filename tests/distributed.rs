@@ -12,7 +12,7 @@ use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
 use hostile_support::{forge, honest_batch};
-use net_support::{free_port, Children};
+use net_support::{ephemeral_low, free_port, Children};
 use proto::{keys, Metrics, Role, RunId, SenderId};
 use shm_support::ShmSnapshot;
 use transport::{DataPlane, Subscriber, Transport, TransportConfig, ZenohConfig};
@@ -858,4 +858,19 @@ fn episodes_of(metrics: &str, phase: &str) -> Vec<u64> {
         .filter(|v| v["phase"] == phase)
         .map(|v| v["episode"].as_u64().unwrap())
         .collect()
+}
+
+/// The ports the tests give their processes lie below the ephemeral range, where no outgoing
+/// connection's source port can take them between the check and the process's bind, and are
+/// never handed out twice (a CI run lost a learner's `--listen` port to such a race).
+#[test]
+fn test_ports_are_below_the_ephemeral_range_and_distinct() {
+    let ports: Vec<u16> = (0..200).map(|_| free_port()).collect();
+    let low = ephemeral_low();
+    assert!(
+        ports.iter().all(|&p| u32::from(p) < low),
+        "a port at or above {low}: {ports:?}"
+    );
+    let distinct: std::collections::BTreeSet<u16> = ports.iter().copied().collect();
+    assert_eq!(distinct.len(), ports.len(), "a port handed out twice");
 }
