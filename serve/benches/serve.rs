@@ -4,7 +4,10 @@
 //! `Trigger::Odometry`: the decision starts when the odometry arrives), for 5 and 10 people.
 //! Prints p50/p99 in ms, and one decision with depth-2 planning (`FSRL_SERVE_PLANNING_K`: top-k
 //! values, each optionally `/M` for a breadth of M second steps; default `3,8,8/8,8/16`) beside
-//! the model's own, as ratios. `cargo bench --workspace --bench serve`.
+//! the model's own, as ratios. The model is `models/fsrl-env1-invisible-s0.fsrlm` unless
+//! `FSRL_SERVE_MODEL` names another (e.g. a shipped `fsrl-plan` model, which plans by itself);
+//! its own decision is timed on one thread and on every core (`fsrl serve`'s default).
+//! `cargo bench --workspace --bench serve`.
 
 use std::path::Path;
 use std::sync::mpsc;
@@ -15,10 +18,18 @@ use serve::served::{Observation, ServedPolicy};
 use sim::{Env, Setting};
 use zenoh::Wait;
 
-const MODEL: &str = concat!(
+const DEFAULT_MODEL: &str = concat!(
     env!("CARGO_MANIFEST_DIR"),
     "/../models/fsrl-env1-invisible-s0.fsrlm"
 );
+
+/// The served model: `FSRL_SERVE_MODEL` (relative paths from the workspace root), else FSRL's.
+fn model_path() -> std::path::PathBuf {
+    std::env::var_os("FSRL_SERVE_MODEL").map_or_else(
+        || DEFAULT_MODEL.into(),
+        |p| Path::new(env!("CARGO_MANIFEST_DIR")).join("..").join(p),
+    )
+}
 const SAMPLES: usize = 400;
 
 fn pct(v: &mut [f64], p: f64) -> f64 {
@@ -28,7 +39,7 @@ fn pct(v: &mut [f64], p: f64) -> f64 {
 
 /// States along ORCA episodes with `people` humans (the states the policy meets).
 fn states(people: usize) -> Vec<Env> {
-    let (model, _) = learner::model::load_policy(Path::new(MODEL)).unwrap();
+    let (model, _) = learner::model::load_policy(&model_path()).unwrap();
     let mut cfg = model.method_sim();
     cfg.humans.count = people;
     let setting: Setting = "env1-invisible".parse().unwrap();
@@ -51,7 +62,7 @@ fn states(people: usize) -> Vec<Env> {
 /// with depth-2 planning over that many first steps (and that breadth of second steps)
 /// instead of the model's own setting.
 fn decisions(people: usize, planning: Option<(usize, usize)>, threads: usize) -> (f64, f64) {
-    let (mut model, _) = learner::model::load_policy(Path::new(MODEL)).unwrap();
+    let (mut model, _) = learner::model::load_policy(&model_path()).unwrap();
     if let Some((k, m)) = planning {
         model.train.planning_top_k = k;
         model.train.planning_breadth = m;
@@ -97,7 +108,7 @@ fn input_to_command(people: usize) {
         clock: serve::Clock::Odometry,
         stale_periods: 1e6,
         zenoh: transport::ZenohConfig::peer(vec![format!("tcp/127.0.0.1:{port}")], vec![]),
-        ..serve::ServeOptions::new(MODEL)
+        ..serve::ServeOptions::new(model_path())
     };
     let inbox = serve::Inbox::new();
     let stop = inbox.stopper();
@@ -218,8 +229,12 @@ fn main() {
     // Each planning arm on one thread and split over every core (`fsrl serve --threads`).
     let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
     let threads: Vec<usize> = if cores > 1 { vec![1, cores] } else { vec![1] };
+    println!("model: {}", model_path().display());
     for people in [5, 10] {
         let own = decisions(people, None, 1);
+        if cores > 1 {
+            decisions(people, None, cores);
+        }
         for &(k, m) in &planning {
             for &t in &threads {
                 let arm = decisions(people, Some((k, m)), t);
