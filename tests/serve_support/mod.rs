@@ -96,6 +96,11 @@ impl Served {
         }
     }
 
+    /// Passes over every log line printed so far: what is waited for next comes after now.
+    pub fn skip_log(&self) {
+        while self.log.try_recv().is_ok() {}
+    }
+
     /// The reason of the next zero command logged (`zero command: REASON`): the first one after
     /// the lines read so far, whatever it says.
     pub fn next_stop_reason(&self, within: Duration) -> String {
