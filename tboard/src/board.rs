@@ -11,8 +11,14 @@
 //! live-only points of the old files up to the log's RL episodes, then the old files are
 //! removed, so TensorBoard shows one curve and no step twice. The new file starts with a
 //! session-start event at step 0, which makes a TensorBoard that had read the old files forget
-//! them. A crash between the new file and the removal leaves both; the next rebuild merges them
-//! (for each tag and step the later file's value).
+//! them. The new file is written under a name TensorBoard does not read
+//! ([`writer::rebuild_temp_name`]) and renamed when whole; such a file left by a crash is removed
+//! when a board opens. A crash between the rename and the removal leaves both event files; the
+//! next rebuild merges them (for each tag and step the later file's value).
+//!
+//! A point's wall time is its log line's `wall_s` (the run's clock: seconds of training, going
+//! on across resumes) on a [`Clock`] anchored when the board (re)builds, so a rebuilt file keeps
+//! the run's own timing rather than the rebuild's.
 
 use std::collections::HashMap;
 use std::io::{self, Read, Seek, SeekFrom};
@@ -77,6 +83,69 @@ impl Follow {
     }
 }
 
+/// The run's clock as wall times: a log line's `wall_s` (seconds of training, the learner's
+/// clock, which a resumed run goes on from its log) becomes `anchor + wall_s`, the anchor chosen
+/// at a (re)build so that the log's latest time is then. A distributed run's validation lines
+/// carry the evaluator's clock instead (it starts again with the evaluator): a validation takes
+/// the time of the RL episode it followed.
+#[derive(Debug, Default)]
+struct Clock {
+    anchor: f64,
+    /// `wall_s` of the RL line of each step (episode + 1).
+    rl: HashMap<i64, f64>,
+    /// The latest `wall_s` on the learner's clock.
+    latest: Option<f64>,
+}
+
+impl Clock {
+    /// A line's `wall_s` on the learner's clock (`None`: the line has none, or another clock's).
+    fn learner_s(mode: Mode, v: &serde_json::Value) -> Option<f64> {
+        let phase = v.get("phase").and_then(|p| p.as_str());
+        if mode == Mode::Distributed && phase == Some("validation") {
+            return None;
+        }
+        v.get("wall_s")
+            .and_then(|w| w.as_f64())
+            .filter(|w| w.is_finite() && *w >= 0.0)
+    }
+
+    /// A clock whose `lines`' latest time is `now`.
+    fn anchored(mode: Mode, lines: &[serde_json::Value], now: f64) -> Self {
+        let latest = lines
+            .iter()
+            .filter_map(|v| Self::learner_s(mode, v))
+            .fold(0.0, f64::max);
+        Clock {
+            anchor: now - latest,
+            ..Default::default()
+        }
+    }
+
+    /// The wall time of line `v`'s points (`now` for a line that tells none).
+    fn of(&mut self, mode: Mode, v: &serde_json::Value, now: f64) -> f64 {
+        let phase = v.get("phase").and_then(|p| p.as_str());
+        let step = v.get("episode").and_then(|e| e.as_i64());
+        let own = Self::learner_s(mode, v);
+        if let Some(w) = own {
+            self.latest = Some(self.latest.map_or(w, |l| l.max(w)));
+            if let (Some("rl"), Some(e)) = (phase, step) {
+                self.rl.insert(e + 1, w);
+            }
+        }
+        let s = if mode == Mode::Distributed && phase == Some("validation") {
+            step.and_then(|e| self.rl.get(&e).copied()).or(self.latest)
+        } else {
+            own
+        };
+        s.map_or(now, |s| self.anchor + s)
+    }
+
+    /// The wall time of a live point at `step`: that of the RL episode of the step, if known.
+    fn at_step(&self, step: i64) -> Option<f64> {
+        self.rl.get(&step).map(|s| self.anchor + s)
+    }
+}
+
 /// A run's TensorBoard directory, fed from its logs and live metrics.
 pub struct RunBoard {
     dir: PathBuf,
@@ -84,13 +153,15 @@ pub struct RunBoard {
     follows: Vec<Follow>,
     mapper: LogMapper,
     live: LiveMapper,
+    clock: Clock,
     writer: EventWriter,
     last: HashMap<String, i64>,
 }
 
 impl RunBoard {
     /// The board of the run in `run_dir`, writing `run_dir/tb/`: rebuilt from the logs as they
-    /// are now if it holds files already (a resumed run).
+    /// are now if it holds files already (a resumed run), without the temporary files of
+    /// rebuilds a crash interrupted.
     pub fn open(run_dir: &Path, mode: Mode) -> io::Result<Self> {
         let follows = LOGS
             .iter()
@@ -100,6 +171,7 @@ impl RunBoard {
             })
             .collect();
         let dir = run_dir.join("tb");
+        writer::remove_rebuild_temps(&dir)?;
         let writer = EventWriter::create_in(&dir)?;
         let mut b = RunBoard {
             dir,
@@ -107,6 +179,7 @@ impl RunBoard {
             follows,
             mapper: LogMapper::new(mode),
             live: LiveMapper::not_in_log(),
+            clock: Clock::default(),
             writer,
             last: HashMap::new(),
         };
@@ -122,18 +195,20 @@ impl RunBoard {
     /// Reads what the logs gained and writes it; rebuilds if a log was replaced or cut.
     pub fn poll(&mut self) -> io::Result<()> {
         let mut points = Vec::new();
+        let now = now_s();
         for i in 0..self.follows.len() {
             match self.follows[i].read_new() {
                 Ok(lines) => {
                     for v in &lines {
-                        points.extend(self.mapper.line(v));
+                        let t = self.clock.of(self.mode, v, now);
+                        points.extend(self.mapper.line(v).into_iter().map(|p| (p, t)));
                     }
                 }
                 Err(Ok(())) => return self.rebuild(),
                 Err(Err(e)) => return Err(e),
             }
         }
-        self.write(points, now_s());
+        self.write(points);
         self.writer.flush()
     }
 
@@ -146,13 +221,14 @@ impl RunBoard {
         if points.is_empty() {
             return Ok(());
         }
-        self.write(points, now_s());
+        let now = now_s();
+        self.write(points.into_iter().map(|p| (p, now)).collect());
         self.writer.flush()
     }
 
-    /// Writes each point above its tag's last step.
-    fn write(&mut self, points: Vec<Point>, wall_time: f64) {
-        for (tag, step, value) in points {
+    /// Writes each point above its tag's last step, at its wall time.
+    fn write(&mut self, points: Vec<(Point, f64)>) {
+        for ((tag, step, value), wall_time) in points {
             let last = self.last.entry(tag.clone()).or_insert(i64::MIN);
             if step <= *last {
                 continue;
@@ -182,40 +258,49 @@ impl RunBoard {
         old.extend(read_file(&own)?);
         // Something was written: a TensorBoard may have read it.
         let resumed = !old.is_empty();
-        // The logs from their start.
+        // The logs from their start, on the run's clock.
         self.mapper = LogMapper::new(self.mode);
-        let mut points = Vec::new();
-        let mut rl_done: i64 = 0;
+        let mut lines = Vec::new();
         for f in &mut self.follows {
             *f = Follow {
                 path: f.path.clone(),
                 ..Default::default()
             };
-            for v in f.read_new().unwrap_or_default() {
-                if v.get("phase").and_then(|p| p.as_str()) == Some("rl") {
-                    if let Some(e) = v.get("episode").and_then(|e| e.as_i64()) {
-                        rl_done = rl_done.max(e + 1);
-                    }
-                }
-                points.extend(self.mapper.line(&v));
-            }
+            lines.extend(f.read_new().unwrap_or_default());
         }
-        let times: HashMap<(String, i64), f64> = old
-            .iter()
-            .map(|s| ((s.tag.clone(), s.step), s.wall_time))
-            .collect();
         let now = now_s();
+        self.clock = Clock::anchored(self.mode, &lines, now);
+        let mut points = Vec::new();
+        let mut rl_done: i64 = 0;
+        for v in &lines {
+            if v.get("phase").and_then(|p| p.as_str()) == Some("rl") {
+                if let Some(e) = v.get("episode").and_then(|e| e.as_i64()) {
+                    rl_done = rl_done.max(e + 1);
+                }
+            }
+            let t = self.clock.of(self.mode, v, now);
+            points.extend(self.mapper.line(v).into_iter().map(|p| (p, t)));
+        }
         let mut merged: Vec<Scalar> = Vec::new();
         let mut at: HashMap<(String, i64), usize> = HashMap::new();
-        let live_kept = old.into_iter().filter(|s| {
-            self.mode == Mode::Distributed && tags::is_live(&s.tag) && s.step <= rl_done
-        });
-        let from_log = points.into_iter().map(|(tag, step, value)| Scalar {
-            wall_time: times.get(&(tag.clone(), step)).copied().unwrap_or(now),
-            tag,
-            step,
-            value: value as f32,
-        });
+        let clock = &self.clock;
+        let live_kept = old
+            .into_iter()
+            .filter(|s| {
+                self.mode == Mode::Distributed && tags::is_live(&s.tag) && s.step <= rl_done
+            })
+            .map(|s| Scalar {
+                wall_time: clock.at_step(s.step).unwrap_or(s.wall_time),
+                ..s
+            });
+        let from_log = points
+            .into_iter()
+            .map(|((tag, step, value), wall_time)| Scalar {
+                wall_time,
+                tag,
+                step,
+                value: value as f32,
+            });
         for s in live_kept.chain(from_log) {
             match at.get(&(s.tag.clone(), s.step)) {
                 Some(&i) => merged[i] = s,
@@ -227,7 +312,7 @@ impl RunBoard {
         }
         merged.sort_by_key(|s| s.step);
         // The new file: written whole under a name TensorBoard ignores, then renamed.
-        let tmp = self.dir.join(format!(".{}.tmp", writer::new_file_name()));
+        let tmp = self.dir.join(writer::rebuild_temp_name());
         let mut w = EventWriter::create(&tmp)?;
         if resumed {
             w.session_start(0);
@@ -545,6 +630,81 @@ mod tests {
             .collect();
         assert!(events[0].file_version.is_some());
         assert!(events[1].session_start);
+    }
+
+    /// An RL line of episode `e` at `wall_s` on the run's clock.
+    fn rl_at(e: u64, wall_s: f64) -> String {
+        format!("{{\"phase\":\"rl\",\"episode\":{e},\"loss\":1.0,\"wall_s\":{wall_s}}}\n")
+    }
+
+    /// `tag`'s (step, wall time) points in the directory.
+    fn times(dir: &Path, tag: &str) -> Vec<(i64, f64)> {
+        writer::read_dir(&dir.join("tb"))
+            .unwrap()
+            .into_iter()
+            .filter(|s| s.tag == tag)
+            .map(|s| (s.step, s.wall_time))
+            .collect()
+    }
+
+    /// The points' wall times less the first's, against the log's `wall_s` less the first's.
+    fn assert_on_the_log_clock(got: &[(i64, f64)], wall_s: &[f64]) {
+        assert_eq!(got.len(), wall_s.len(), "{got:?}");
+        for ((step, t), w) in got.iter().zip(wall_s) {
+            let (dt, dw) = (t - got[0].1, w - wall_s[0]);
+            assert!(
+                (dt - dw).abs() < 1e-3,
+                "step {step}: {dt} s after the first point in the files, {dw} s in the log: {got:?}"
+            );
+        }
+    }
+
+    /// Issue 52: a rebuilt file's points keep the run's timing (each its log line's `wall_s`);
+    /// before, every point the old files did not hold got the rebuild's time (a run whose
+    /// board started at a resume: one instant for the whole curve).
+    #[test]
+    fn points_keep_the_logs_own_clock_through_rebuilds() {
+        let run = tempfile::tempdir().unwrap();
+        let metrics = run.path().join("metrics.jsonl");
+        let walls = [3.0, 13.0, 23.5, 40.0, 41.0];
+        for (e, w) in walls.iter().enumerate().take(4) {
+            append(&metrics, &rl_at(e as u64, *w));
+        }
+        let mut b = RunBoard::open(run.path(), SINGLE).unwrap();
+        assert_on_the_log_clock(&times(run.path(), tags::TD_LOSS), &walls[..4]);
+        let opened = now_s();
+        let last = times(run.path(), tags::TD_LOSS)[3].1;
+        assert!(
+            (last - opened).abs() < 60.0,
+            "the log's latest point is about now"
+        );
+        append(&metrics, &rl_at(4, walls[4]));
+        b.poll().unwrap();
+        assert_on_the_log_clock(&times(run.path(), tags::TD_LOSS), &walls);
+        drop(b);
+        // A resume cuts the log back to 2 episodes and trains on: its clock goes on from 13.
+        let tmp = run.path().join("metrics.jsonl.tmp");
+        std::fs::write(&tmp, rl_at(0, walls[0]) + &rl_at(1, walls[1])).unwrap();
+        std::fs::rename(&tmp, &metrics).unwrap();
+        let mut b = RunBoard::open(run.path(), SINGLE).unwrap();
+        append(&metrics, &rl_at(2, 14.5));
+        b.poll().unwrap();
+        assert_on_the_log_clock(&times(run.path(), tags::TD_LOSS), &[3.0, 13.0, 14.5]);
+
+        // A distributed run's validation carries the evaluator's clock: it takes the time of
+        // the RL episode it followed.
+        let run = tempfile::tempdir().unwrap();
+        let metrics = run.path().join("metrics.jsonl");
+        for (e, w) in walls.iter().enumerate() {
+            append(&metrics, &rl_at(e as u64, *w));
+        }
+        append(
+            &metrics,
+            "{\"phase\":\"validation\",\"episode\":2,\"success_rate\":0.5,\"wall_s\":0.25}\n",
+        );
+        RunBoard::open(run.path(), Mode::Distributed).unwrap();
+        let rl = times(run.path(), tags::TD_LOSS);
+        assert_eq!(times(run.path(), tags::VAL_SUCCESS), vec![(2, rl[1].1)]);
     }
 
     #[test]

@@ -1,6 +1,7 @@
 //! Event files in a directory: [`EventWriter`] appends scalars to a new file named as TensorBoard
-//! names its own (`events.out.tfevents.<unix seconds>.<host>.<pid>.<n>`, so files sort in the
-//! order they were started); [`read_dir`] reads every scalar back.
+//! names its own (`events.out.tfevents.<unix seconds>.<host>.<pid>.<n>`, numbers padded to a
+//! fixed width so that files sort in the order they were started); [`read_dir`] reads every
+//! scalar back.
 
 use std::fs::File;
 use std::io::{self, Write};
@@ -34,16 +35,61 @@ fn host() -> String {
     }
 }
 
+/// Files this process started, for the last field of their names.
+static SEQ: AtomicU64 = AtomicU64::new(0);
+
+/// An event file's name: `events.out.tfevents.<unix_s>.<host>.<pid>.<seq>`, every number
+/// padded to a fixed width (10, 10 and 4 digits). TensorBoard reads a directory's files in name
+/// order, so a file must sort after the files started before it: unpadded, pid 100000's file
+/// sorted before pid 99999's of the same second.
+pub fn file_name(unix_s: u64, host: &str, pid: u32, seq: u64) -> String {
+    format!("events.out.tfevents.{unix_s:010}.{host}.{pid:010}.{seq:04}")
+}
+
 /// A new event file's name.
 pub fn new_file_name() -> String {
-    static SEQ: AtomicU64 = AtomicU64::new(0);
-    format!(
-        "events.out.tfevents.{:010}.{}.{}.{:04}",
+    file_name(
         now_s() as u64,
-        host(),
+        &host(),
+        std::process::id(),
+        SEQ.fetch_add(1, Ordering::Relaxed),
+    )
+}
+
+/// The name a rebuild writes its new file under until the file is whole: hidden, and without
+/// `tfevents` in it, as TensorBoard reads every file whose name contains `tfevents` (hidden ones
+/// too).
+pub fn rebuild_temp_name() -> String {
+    format!(
+        ".rebuild.{:010}.{:04}.tmp",
         std::process::id(),
         SEQ.fetch_add(1, Ordering::Relaxed)
     )
+}
+
+/// Whether `name` is a rebuild's temporary file ([`rebuild_temp_name`], or the
+/// `.events.out.tfevents.*.tmp` of earlier versions), which only a crash leaves behind.
+pub fn is_rebuild_temp(name: &str) -> bool {
+    name.ends_with(".tmp")
+        && (name.starts_with(".rebuild.") || name.starts_with(".events.out.tfevents."))
+}
+
+/// Removes the temporary files of rebuilds a crash interrupted from `dir`; returns how many.
+pub fn remove_rebuild_temps(dir: &Path) -> io::Result<usize> {
+    let rd = match std::fs::read_dir(dir) {
+        Ok(rd) => rd,
+        Err(e) if e.kind() == io::ErrorKind::NotFound => return Ok(0),
+        Err(e) => return Err(e),
+    };
+    let mut n = 0;
+    for entry in rd {
+        let entry = entry?;
+        if is_rebuild_temp(&entry.file_name().to_string_lossy()) && entry.file_type()?.is_file() {
+            std::fs::remove_file(entry.path())?;
+            n += 1;
+        }
+    }
+    Ok(n)
 }
 
 /// Appends events to one file; what is written reaches the file at [`EventWriter::flush`].
@@ -175,5 +221,34 @@ mod tests {
         let files = event_files(&dir.path().join("tb")).unwrap();
         assert_eq!(files.last().unwrap(), w2.path());
         assert!(read_dir(&dir.path().join("none")).unwrap().is_empty());
+    }
+
+    #[test]
+    fn names_are_fixed_width_and_sort_by_pid_within_a_second() {
+        let a = file_name(1_700_000_000, "h", 99_999, 0);
+        let b = file_name(1_700_000_000, "h", 100_000, 0);
+        assert_eq!(a.len(), b.len(), "{a} {b}");
+        assert!(a < b, "{a} sorts after {b}");
+        assert!(new_file_name().len() == file_name(0, &host(), 0, 0).len());
+    }
+
+    #[test]
+    fn a_rebuilds_temporary_file_is_no_event_file_and_is_removed() {
+        let tmp = rebuild_temp_name();
+        assert!(!tmp.contains("tfevents") && !is_event_file(&tmp), "{tmp}");
+        assert!(is_rebuild_temp(&tmp));
+        let dir = tempfile::tempdir().unwrap();
+        let older = format!(".{}.tmp", new_file_name());
+        let kept = EventWriter::create_in(dir.path()).unwrap();
+        for name in [&tmp, &older] {
+            std::fs::write(dir.path().join(name), b"x").unwrap();
+        }
+        assert_eq!(remove_rebuild_temps(dir.path()).unwrap(), 2);
+        let left: Vec<_> = std::fs::read_dir(dir.path())
+            .unwrap()
+            .map(|e| e.unwrap().path())
+            .collect();
+        assert_eq!(left, vec![kept.path().to_path_buf()]);
+        assert_eq!(remove_rebuild_temps(&dir.path().join("none")).unwrap(), 0);
     }
 }
