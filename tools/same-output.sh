@@ -12,7 +12,10 @@ cd "$(dirname "$0")/.."
 [ $# -ge 2 ] || { echo "usage: $0 OLD_FSRL NEW_FSRL [WORK_DIR]" >&2; exit 2; }
 old=$(realpath "$1"); new=$(realpath "$2")
 work=${3:-$(mktemp -d)}
-shared=../shared/data/crowdnav_cases/test_h10_scenes.csv
+# CrowdNav's test scenes (testdata/README.md); FSRL_CROWDNAV_OUTCOMES_DIR names another copy, as in
+# sim/tests/crowdnav_parity.rs.
+scenes=${FSRL_CROWDNAV_OUTCOMES_DIR:-testdata/crowdnav_cases}/test_h10_scenes.csv
+[ -f "$scenes" ] || { echo "error: $scenes is missing (CrowdNav's test scenes, testdata/)" >&2; exit 2; }
 
 outputs() {
   local B=$1 O=$2
@@ -32,7 +35,7 @@ outputs() {
   run eval eval models/fsrl-env1-invisible-s0.fsrlm models/lstm-rl-env1-visible-s0.fsrlm --settings env1-invisible,env3-visible --episodes 12 --out "$O/eval"
   run eval-orca eval --orca --episodes 8 --out "$O/eval-orca"
   run sim sim --episodes 15 --svg "$O/sim.svg"
-  [ -f "$shared" ] && run scenes sim --scenes "$shared" --robot holonomic --semantics crowdnav --episodes 30
+  run scenes sim --scenes "$scenes" --robot holonomic --semantics crowdnav --episodes 30
   run dry reproduce --dry-run --runs "$O/rr" --models models
   printf '[train]\nvalidation_every_episodes = 3\nvalidation_episodes = 5\nselect = "best-validation"\n' >"$O/tiny.toml"
   # The run directory's name is its run id, which the checkpoint holds: the same in both.

@@ -3,12 +3,12 @@
 //! per-case outcomes CrowdNav's own ORCA robot had on them, and the aggregate metrics.
 //!
 //! Data: `test_h10_scenes.csv` and `test_h10_vis{0,1}_outcomes.csv` from the directory named by
-//! `FSRL_CROWDNAV_OUTCOMES_DIR`, default `../shared/data/crowdnav_cases` next to the workspace.
-//! Every case listed in an outcomes file is replayed (0–199 in the shared data; a file of more
-//! cases is checked the same way). Run with `--nocapture` to see the aggregates, also under
-//! SPEC's default semantics.
+//! `FSRL_CROWDNAV_OUTCOMES_DIR`, default the repository's `testdata/crowdnav_cases` (where they
+//! come from: `testdata/README.md`). Every case listed in an outcomes file is replayed (0–199 in
+//! the repository's data; a file of more cases is checked the same way). Run with `--nocapture`
+//! to see the aggregates, also under SPEC's default semantics (`docs/SPEC.md` §2).
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 use sim::config::Kinematics;
 use sim::{
@@ -24,7 +24,10 @@ const NAV_TIME_TOLERANCE_S: f64 = 0.1;
 fn data_dir() -> PathBuf {
     match std::env::var_os("FSRL_CROWDNAV_OUTCOMES_DIR") {
         Some(d) => PathBuf::from(d),
-        None => Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data/crowdnav_cases"),
+        None => PathBuf::from(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../testdata/crowdnav_cases"
+        )),
     }
 }
 

@@ -1,8 +1,9 @@
 //! Replays RVO2 reference scenes one step at a time: from the reference state at every step, our
 //! ORCA velocities must match RVO2's within 1e-4 m/s for every agent of every non-symmetric scene.
 //!
-//! The directory defaults to `shared/data/orca_ref` beside the repository and can be changed with
-//! `FSRL_ORCA_REF_DIR`; every `*.csv` below it (subdirectories included) is replayed.
+//! The directory defaults to the repository's `testdata/orca_ref` (where the scenes come from:
+//! `testdata/README.md`) and can be changed with `FSRL_ORCA_REF_DIR`; every `*.csv` below it
+//! (subdirectories included) is replayed.
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -118,7 +119,7 @@ fn one_step_velocities_match_rvo2() {
     let dir = std::env::var_os("FSRL_ORCA_REF_DIR")
         .map(PathBuf::from)
         .unwrap_or_else(|| {
-            Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data/orca_ref")
+            PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../testdata/orca_ref"))
         });
     let mut files = Vec::new();
     csv_files(&dir, &mut files);
