@@ -5,10 +5,36 @@
 //! Flow control (Reverb-style): each actor may run at most `in_flight_per_actor` episodes ahead
 //! of what the learner has accepted; when the learner is busy training, actors wait instead of
 //! data being dropped.
+//!
+//! A run, in the order [`run`] goes through it:
+//!
+//! 1. **restore** ([`restore`]): lock the run directory, load the last checkpoint (or start a
+//!    new run), cut the training log back to it;
+//! 2. **recover** ([`Learner::replay_wal`]): the episodes acknowledged after that checkpoint,
+//!    from the write-ahead log, trained on again;
+//! 3. **warm start** ([`warm_start`]): imitation, unless the checkpoint is past it;
+//! 4. **train** ([`training::train`]): the RL phase, episodes taken and trained on as the
+//!    replay schedule says ([`schedule`]: fixed or adaptive), then the updates the adaptive
+//!    schedule still owes ([`schedule::Schedule::top_up`]);
+//! 5. **finish** ([`training::finish`]): final checkpoint, weights, `Finished`, and the final
+//!    figures ([`crate::record`]); then **linger** ([`training::linger`]) until the actors and
+//!    evaluators have left.
+//!
+//! A stop (Ctrl-C) in the warm start or in training checkpoints and ends with
+//! [`LearnerExit::Stopped`]. The learner's state and its handlers (accepting, acknowledging,
+//! publishing) are [`Learner`]'s; who is alive is [`alive`]'s.
 
-use std::collections::{BTreeMap, BTreeSet, HashMap, HashSet, VecDeque};
+mod alive;
+mod schedule;
+#[cfg(test)]
+mod tests;
+mod training;
+mod warm_start;
+mod window;
+
+use std::collections::{BTreeMap, HashMap};
 use std::path::PathBuf;
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::AtomicBool;
 use std::time::{Duration, Instant};
 
 use policy::method::RunSpec;
@@ -19,9 +45,11 @@ use proto::{
 use sim::Outcome;
 use transport::{AliveEvent, Heartbeat, Publisher, Transport, TransportError};
 
+use self::alive::{Members, Membership};
+use self::window::Window;
 use crate::checkpoint::{self, RunInfo};
 use crate::core::{LearnerCore, LearnerError};
-use crate::imitation::{self, ImitationProgress};
+use crate::store::RunLock;
 use crate::wal::Wal;
 
 /// Learner process settings.
@@ -52,6 +80,8 @@ pub enum ProcessError {
         what: String,
         source: std::io::Error,
     },
+    #[error(transparent)]
+    Record(#[from] crate::record::RecordError),
     #[error("invalid weights: {0}")]
     Weights(String),
     #[error("the adaptive mode made no update in {rounds} rounds in a row ({skipped} batches skipped for a non-finite loss or gradient): training has diverged")]
@@ -70,41 +100,186 @@ fn io(what: impl Into<String>) -> impl FnOnce(std::io::Error) -> ProcessError {
     move |source| ProcessError::Io { what, source }
 }
 
-struct Window {
-    outcomes: VecDeque<Outcome>,
-    lags: VecDeque<u64>,
-    losses: VecDeque<f32>,
+/// How a phase of the run ended.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Ended {
+    /// It did its work; the next phase follows.
+    Done,
+    /// `stop` was set first.
+    Stopped,
 }
 
-impl Window {
-    fn push(&mut self, o: Outcome, lag: u64, loss: f32) {
-        if self.outcomes.len() == 100 {
-            self.outcomes.pop_front();
-            self.lags.pop_front();
-            self.losses.pop_front();
-        }
-        self.outcomes.push_back(o);
-        self.lags.push_back(lag);
-        self.losses.push_back(loss);
-    }
-    /// The `q` quantile of the window's policy lags (nearest rank; 0 without episodes).
-    fn lag_quantile(&self, q: f64) -> u64 {
-        let mut lags: Vec<u64> = self.lags.iter().copied().collect();
-        if lags.is_empty() {
-            return 0;
-        }
-        lags.sort_unstable();
-        let rank = ((q * lags.len() as f64).ceil() as usize).clamp(1, lags.len());
-        lags[rank - 1]
-    }
-    fn rate(&self, o: Outcome) -> f64 {
-        if self.outcomes.is_empty() {
-            return 0.0;
-        }
-        self.outcomes.iter().filter(|x| **x == o).count() as f64 / self.outcomes.len() as f64
-    }
+/// Runs the learner until the run's RL episodes are done or `stop` is set (then checkpoints).
+pub fn run(
+    transport: &Transport,
+    spec: &RunSpec,
+    opts: &LearnerOptions,
+    stop: &AtomicBool,
+) -> Result<LearnerExit, ProcessError> {
+    run_with_probe(transport, spec, opts, stop, crate::store::Probe::none())
 }
 
+/// [`run`] with every file-system step of the run directory reported to `probe` (tests inject a
+/// full disk through it, `crate::store::Probe`). The process's status heartbeats tell its state
+/// (starting, running; idle while no actor is alive in training; stopping; failed with why) and
+/// its last warning.
+pub fn run_with_probe(
+    transport: &Transport,
+    spec: &RunSpec,
+    opts: &LearnerOptions,
+    stop: &AtomicBool,
+    probe: crate::store::Probe,
+) -> Result<LearnerExit, ProcessError> {
+    let status = Heartbeat::new(transport)?;
+    status.finish(run_inner(transport, spec, opts, stop, probe, &status))
+}
+
+/// The run's phases, in order (module docs).
+fn run_inner(
+    transport: &Transport,
+    spec: &RunSpec,
+    opts: &LearnerOptions,
+    stop: &AtomicBool,
+    probe: crate::store::Probe,
+    status: &Heartbeat,
+) -> Result<LearnerExit, ProcessError> {
+    let Restored {
+        lock: _lock,
+        wal_records,
+        state,
+    } = restore(spec, opts, probe)?;
+    // Episodes in and who is alive, before anything is replayed (what comes meanwhile queues).
+    let run = transport.run().clone();
+    let subscriber = transport.subscriber(&keys::all_transitions(&run))?;
+    let alive = transport.watch_alive()?;
+    let mut l = Learner::new(transport, status, spec, opts, state)?;
+    l.replay_wal(&wal_records)?;
+    let _token = transport.declare_alive()?;
+    status.set_state(ProcessState::Running);
+    l.publish_control();
+    l.publish_metrics()?;
+
+    if !l.core.counters().imitation_done
+        && warm_start::run(&mut l, &subscriber, &alive, stop)? == Ended::Stopped
+    {
+        return Ok(LearnerExit::Stopped);
+    }
+    l.start_rl()?;
+    let mut schedule = schedule::of(spec);
+    let mut ended = training::train(&mut l, schedule.as_mut(), &subscriber, &alive, stop)?;
+    if ended == Ended::Done {
+        ended = schedule.top_up(&mut l, stop)?;
+    }
+    if ended == Ended::Stopped {
+        return l.stopped();
+    }
+
+    training::finish(&mut l)?;
+    training::linger(&mut l, |wait| alive.recv_timeout(wait), stop)?;
+    Ok(LearnerExit::Finished)
+}
+
+/// What the run directory holds for the learner: its lock (held until the learner ends), the
+/// write-ahead log's records (not yet replayed) and the learner's state.
+struct Restored {
+    lock: RunLock,
+    wal_records: Vec<Vec<u8>>,
+    state: State,
+}
+
+/// The learner's state as the run directory left it: the last checkpoint's (or a new run's),
+/// the write-ahead log, and the training log cut back to the checkpoint.
+struct State {
+    core: LearnerCore,
+    accepted_below: BTreeMap<u32, u64>,
+    wal: Wal,
+    sim_cfg: sim::SimConfig,
+    /// The training log (`metrics.jsonl`), open for appending, and the clock of its last line.
+    log: std::fs::File,
+    wall0: Duration,
+}
+
+/// The run directory: locked for as long as the learner runs, its write-ahead log recovered
+/// from a crash mid-append, corruption refused (`store`); the last checkpoint (refused if it
+/// is of another run), or a new run; an earlier process's final figures removed.
+fn restore(
+    spec: &RunSpec,
+    opts: &LearnerOptions,
+    probe: crate::store::Probe,
+) -> Result<Restored, ProcessError> {
+    let store = crate::store::Store::open(&opts.run_dir, probe)
+        .map_err(|e| io("cannot start the learner")(std::io::Error::other(e)))?;
+    crate::record::remove_stale(&opts.run_dir)?;
+    let sim_cfg = spec.method_sim();
+    let expected = checkpoint::RunIdentity {
+        run_id: opts.run_id.clone(),
+        method: spec.method,
+        setting: spec.setting.name().to_string(),
+        run_seed: spec.seed,
+    };
+    let (mut core, accepted_below) = match store.load_checkpoint(&expected)? {
+        Some(loaded) => {
+            tracing::info!(
+                rl_episodes = loaded.core.counters().rl_episodes,
+                "resuming from {}",
+                store.checkpoint_path().display()
+            );
+            (loaded.core, loaded.run.accepted_below)
+        }
+        None => {
+            let core = LearnerCore::new(
+                spec.method,
+                spec.train.clone(),
+                spec.sim.humans.count,
+                spec.sim.dt_s,
+                spec.seed,
+            )?;
+            (core, BTreeMap::new())
+        }
+    };
+    core.set_action_count(sim::ActionSet::for_config(&sim_cfg).len());
+    let (lock, wal, wal_records) = store.into_parts();
+    let (log, wall0) = open_log(opts, &core)?;
+    Ok(Restored {
+        lock,
+        wal_records,
+        state: State {
+            core,
+            accepted_below,
+            wal,
+            sim_cfg,
+            log,
+            wall0,
+        },
+    })
+}
+
+/// The training log, cut back to the checkpoint (the write-ahead log's episodes after it are
+/// replayed and logged again; without a checkpoint the run starts again from nothing), open
+/// for appending; and the clock of its last line.
+fn open_log(
+    opts: &LearnerOptions,
+    core: &LearnerCore,
+) -> Result<(std::fs::File, Duration), ProcessError> {
+    let log_path = opts.run_dir.join("metrics.jsonl");
+    let (rl_done, trim) = if core.counters().imitation_done || core.counters().rl_episodes > 0 {
+        (core.counters().rl_episodes, crate::runlog::Trim::Rl)
+    } else {
+        (0, crate::runlog::Trim::Restart)
+    };
+    crate::runlog::trim(&log_path, rl_done, trim)
+        .map_err(io(format!("cannot rewrite {}", log_path.display())))?;
+    let wall0 = crate::runlog::last_wall(&log_path);
+    let log = std::fs::OpenOptions::new()
+        .create(true)
+        .append(true)
+        .open(&log_path)
+        .map_err(io(format!("cannot open {}", log_path.display())))?;
+    Ok((log, wall0))
+}
+
+/// The learner process's state, with its handlers: accepting, acknowledging, training on and
+/// logging episodes, checkpointing, publishing weights, control and metrics.
 struct Learner<'a> {
     t: &'a Transport,
     /// Status heartbeats: the state, and every warning below as the last error.
@@ -118,12 +293,8 @@ struct Learner<'a> {
     control: transport::LatestPublisher<Control>,
     metrics: Publisher<Metrics>,
     wal: Wal,
-    /// The actors alive: id → the instances (liveliness tokens) alive under it. Counted and
-    /// capped by id ([`MAX_ACTORS`]); the watcher keeps at most
-    /// [`transport::MAX_INSTANCES_PER_SENDER`] instances of an id (the newest), so a flood of
-    /// tokens under one id neither fills the table nor crowds out other actors.
-    actors_alive: AliveActors,
-    evaluators_alive: HashSet<proto::Member>,
+    /// The actors and evaluators alive (capped, [`alive`]).
+    members: Members,
     /// Liveliness tokens the watcher did not track (too many instances of one id: the oldest
     /// displaced; too many senders), as of the last metrics tick.
     alive_tokens_refused: u64,
@@ -152,16 +323,123 @@ struct Learner<'a> {
     /// single-process mode writes it; `wall0` is the clock of the log's earlier lines.
     log: std::fs::File,
     wall0: Duration,
-    /// The last stored episode: outcome, steps, return, ε of its index (for its log line).
     /// The episode just stored: (outcome, steps, return, ε, actor, the actor's episode index).
     stored: Option<(Outcome, u32, f64, f64, u32, u64)>,
     /// Log lines that could not be written (a full disk): counted, never fatal.
     log_failures: u64,
-    /// Rounds of the adaptive mode in a row that made no update (see [`MAX_IDLE_ROUNDS`]).
-    idle_rounds: u64,
 }
 
-impl Learner<'_> {
+impl<'a> Learner<'a> {
+    /// The learner on `state`, with its publishers of weights, control and metrics.
+    fn new(
+        t: &'a Transport,
+        status: &'a Heartbeat,
+        spec: &'a RunSpec,
+        opts: &'a LearnerOptions,
+        state: State,
+    ) -> Result<Self, ProcessError> {
+        let run = t.run();
+        let State {
+            core,
+            accepted_below,
+            wal,
+            sim_cfg,
+            log,
+            wall0,
+        } = state;
+        Ok(Learner {
+            t,
+            status,
+            spec,
+            opts,
+            core,
+            accepted_below,
+            acks: HashMap::new(),
+            weights: t.latest_publisher(&keys::weights(run))?,
+            control: t.latest_publisher(&keys::control(run))?,
+            metrics: t.publisher(&keys::metrics(run, t.sender()))?,
+            wal,
+            members: Members::default(),
+            alive_tokens_refused: 0,
+            window: Window::default(),
+            rejected_episodes: 0,
+            duplicates: 0,
+            out_of_order: 0,
+            refused_in_imitation: 0,
+            wal_failures: 0,
+            checkpoint_failures: 0,
+            publish_failures: 0,
+            start: Instant::now(),
+            rl_start: (Instant::now(), 0, 0),
+            wait: Duration::ZERO,
+            train: Duration::ZERO,
+            last_loss: f32::NAN,
+            sim_cfg,
+            log,
+            wall0,
+            stored: None,
+            log_failures: 0,
+        })
+    }
+
+    /// Episodes acknowledged after the last checkpoint: back from the write-ahead log, trained
+    /// on again; those the checkpoint already holds (a crash before the log was emptied) are
+    /// dropped. The log stays as it is: it already holds exactly these records.
+    fn replay_wal(&mut self, wal_records: &[Vec<u8>]) -> Result<(), ProcessError> {
+        let plan = crate::store::replay_plan(wal_records, &self.accepted_below);
+        self.duplicates += plan.duplicates;
+        let mut replayed = 0;
+        for msg in &plan.episodes {
+            if self.accept(
+                msg.header.sender.index,
+                &msg.body,
+                msg.header.policy_version,
+                false,
+            )? {
+                self.train_stored()?;
+                replayed += 1;
+            }
+        }
+        if plan.unreadable > 0 {
+            tracing::warn!(
+                records = plan.unreadable,
+                "skipped write-ahead log records that are not an actor's episode"
+            );
+        }
+        if !wal_records.is_empty() {
+            tracing::info!(
+                replayed,
+                duplicates = plan.duplicates,
+                "write-ahead log replayed"
+            );
+        }
+        Ok(())
+    }
+
+    /// RL starts in this process: its replay ratio counts from here; the weights and control
+    /// go out, the actors that joined during the warm start learn where to go on, and the
+    /// first metrics of training name where the ratio is counted from (`rl_start_*`).
+    fn start_rl(&mut self) -> Result<(), ProcessError> {
+        self.rl_start = (
+            Instant::now(),
+            self.core.counters().rl_episodes,
+            self.core.counters().updates,
+        );
+        self.publish_weights()?;
+        self.publish_control();
+        for id in self.live_actor_ids() {
+            self.ack(id);
+        }
+        self.publish_metrics()
+    }
+
+    /// A stop in training: the checkpoint and the figures of this moment, then the exit.
+    fn stopped(&mut self) -> Result<LearnerExit, ProcessError> {
+        self.status.set_state(ProcessState::Stopping);
+        self.checkpoint()?;
+        crate::record::write(&self.opts.run_dir, &self.metrics_now())?;
+        Ok(LearnerExit::Stopped)
+    }
     fn ckpt_path(&self) -> PathBuf {
         self.opts.run_dir.join("checkpoints").join("latest.ckpt")
     }
@@ -208,12 +486,7 @@ impl Learner<'_> {
     /// actor that joins is acknowledged, an actor id whose last instance leaves loses its ack
     /// publisher.
     fn on_alive(&mut self, ev: AliveEvent) -> bool {
-        match track_alive(
-            &mut self.actors_alive,
-            &mut self.evaluators_alive,
-            self.status,
-            ev,
-        ) {
+        match self.members.track(self.status, ev) {
             Membership::Unchanged => false,
             Membership::ActorJoined { index, new_id } => {
                 self.ack(index);
@@ -228,7 +501,7 @@ impl Learner<'_> {
 
     /// The indices of the actors alive now, ascending, each once.
     fn live_actor_ids(&self) -> Vec<u32> {
-        self.actors_alive.ids().collect()
+        self.members.actors.ids().collect()
     }
 
     fn phase(&self) -> RunPhase {
@@ -351,6 +624,28 @@ impl Learner<'_> {
     }
 
     fn publish_metrics(&self) -> Result<(), ProcessError> {
+        self.publish(&self.metrics_now())
+    }
+
+    /// The final figures: durable in the run directory (`crate::record`, part of the run's
+    /// record), then live.
+    fn publish_final_metrics(&self) -> Result<(), ProcessError> {
+        let m = self.metrics_now();
+        crate::record::write(&self.opts.run_dir, &m)?;
+        self.publish(&m)
+    }
+
+    fn publish(&self, m: &Metrics) -> Result<(), ProcessError> {
+        let c = self.core.counters();
+        self.metrics.publish(c.policy_version, m)?;
+        self.status.progress(c.env_steps, c.rl_episodes);
+        self.status.beat();
+        Ok(())
+    }
+
+    /// The learner's figures now: counters, rates of the window, the realised replay ratio,
+    /// time waited and trained, everything refused or failed.
+    fn metrics_now(&self) -> Metrics {
         let c = self.core.counters();
         let wall = self.start.elapsed().as_secs_f64();
         let (t0, e0, u0) = self.rl_start;
@@ -416,17 +711,14 @@ impl Learner<'_> {
             ("log_failures", self.log_failures as f64),
             ("skipped_batches", self.core.skipped_batches() as f64),
             ("skipped_refreshes", self.core.skipped_refreshes() as f64),
-            ("actors_alive", self.actors_alive.len() as f64),
-            ("alive_refused", self.actors_alive.refused as f64),
+            ("actors_alive", self.members.actors.len() as f64),
+            ("alive_refused", self.members.actors.refused as f64),
             ("alive_tokens_refused", self.alive_tokens_refused as f64),
             ("imitation_done", if c.imitation_done { 1.0 } else { 0.0 }),
         ] {
             m.values.insert(k.to_string(), v);
         }
-        self.metrics.publish(c.policy_version, &m)?;
-        self.status.progress(c.env_steps, c.rl_episodes);
-        self.status.beat();
-        Ok(())
+        m
     }
 
     /// Trains on the episode just stored (`batches_per_episode` updates) and logs its line.
@@ -438,33 +730,6 @@ impl Learner<'_> {
             *last = self.last_loss;
         }
         self.log_stored();
-        Ok(())
-    }
-
-    /// The adaptive mode's round of `batches` updates, not tied to an episode. Its episodes
-    /// wait for updates, so rounds that make none would starve the actors for ever: a skipped
-    /// refresh of the targets re-synchronises the target network or fails
-    /// ([`LearnerCore::train_round`]), and [`MAX_IDLE_ROUNDS`] rounds in a row without an update
-    /// (every batch non-finite) fail too, loudly.
-    fn train_round(&mut self, batches: u32) -> Result<(), ProcessError> {
-        let trained = Instant::now();
-        let before = self.core.counters().updates;
-        let loss = self.core.train_round(batches)?;
-        self.train += trained.elapsed();
-        if loss.is_finite() {
-            self.last_loss = loss;
-        }
-        if self.core.counters().updates > before {
-            self.idle_rounds = 0;
-        } else {
-            self.idle_rounds += 1;
-            if self.idle_rounds >= MAX_IDLE_ROUNDS {
-                return Err(ProcessError::NoProgress {
-                    rounds: self.idle_rounds,
-                    skipped: self.core.skipped_batches(),
-                });
-            }
-        }
         Ok(())
     }
 
@@ -683,158 +948,6 @@ impl Learner<'_> {
     }
 }
 
-/// What a liveliness event changed (see [`track_alive`]).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-enum Membership {
-    Unchanged,
-    /// An instance of actor `index` joined (`new_id`: the id's first).
-    ActorJoined {
-        index: u32,
-        new_id: bool,
-    },
-    /// The last instance of actor `index` left.
-    ActorGone(u32),
-}
-
-/// Tracks who is alive, with the log lines (at most [`MAX_ACTORS`] actor ids and as many
-/// evaluators; a refusal is counted and logged at powers of two). It needs no more of the
-/// learner than these two sets, so the warm start drains liveliness with it too (a flood of
-/// tokens then cannot fill the watcher's bounded queue while nothing reads it).
-fn track_alive(
-    actors: &mut AliveActors,
-    evaluators: &mut HashSet<proto::Member>,
-    status: &Heartbeat,
-    ev: AliveEvent,
-) -> Membership {
-    match ev {
-        AliveEvent::Joined(m) if m.sender.role == Role::Actor => {
-            let index = m.sender.index;
-            match actors.join(index, m.instance, MAX_ACTORS) {
-                Joined::Refused => {
-                    warn_sometimes(
-                        status,
-                        "alive",
-                        actors.refused,
-                        format_args!("ignoring actor {m}: {MAX_ACTORS} actor ids are alive"),
-                    );
-                    Membership::Unchanged
-                }
-                Joined::Known => Membership::Unchanged,
-                joined => {
-                    tracing::info!(actor = %m, "actor joined");
-                    Membership::ActorJoined {
-                        index,
-                        new_id: joined == Joined::NewId,
-                    }
-                }
-            }
-        }
-        AliveEvent::Left(m) if m.sender.role == Role::Actor => {
-            let index = m.sender.index;
-            match actors.leave(index, m.instance) {
-                Left::Unknown => Membership::Unchanged,
-                Left::Instance => {
-                    tracing::warn!(actor = %m, "actor left");
-                    Membership::Unchanged
-                }
-                Left::LastInstance => {
-                    tracing::warn!(actor = %m, "actor left");
-                    Membership::ActorGone(index)
-                }
-            }
-        }
-        AliveEvent::Joined(m) if m.sender.role == Role::Evaluator => {
-            if evaluators.len() < MAX_ACTORS {
-                evaluators.insert(m);
-            }
-            Membership::Unchanged
-        }
-        AliveEvent::Left(m) if m.sender.role == Role::Evaluator => {
-            evaluators.remove(&m);
-            Membership::Unchanged
-        }
-        _ => Membership::Unchanged,
-    }
-}
-
-/// The actors alive, by id: each id with the liveliness instances alive under it. At most `cap`
-/// ids are admitted, however many instances an id declares (a flood of tokens under one id
-/// takes one place, so the actors that join after it are still admitted).
-#[derive(Debug, Default)]
-struct AliveActors {
-    ids: BTreeMap<u32, BTreeSet<u64>>,
-    /// Joins refused because `cap` ids were alive.
-    refused: u64,
-}
-
-/// What a liveliness token's arrival changed.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-enum Joined {
-    /// The id's first instance.
-    NewId,
-    /// Another instance of an id alive already.
-    NewInstance,
-    /// An instance already known.
-    Known,
-    /// A new id while `cap` ids were alive.
-    Refused,
-}
-
-/// What a liveliness token's departure changed.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-enum Left {
-    /// The id's last instance: the id is gone.
-    LastInstance,
-    /// One of several instances.
-    Instance,
-    Unknown,
-}
-
-impl AliveActors {
-    fn join(&mut self, id: u32, instance: u64, cap: usize) -> Joined {
-        let new_id = !self.ids.contains_key(&id);
-        if new_id && self.ids.len() >= cap {
-            self.refused += 1;
-            return Joined::Refused;
-        }
-        if !self.ids.entry(id).or_default().insert(instance) {
-            Joined::Known
-        } else if new_id {
-            Joined::NewId
-        } else {
-            Joined::NewInstance
-        }
-    }
-
-    fn leave(&mut self, id: u32, instance: u64) -> Left {
-        let Some(instances) = self.ids.get_mut(&id) else {
-            return Left::Unknown;
-        };
-        if !instances.remove(&instance) {
-            return Left::Unknown;
-        }
-        if instances.is_empty() {
-            self.ids.remove(&id);
-            Left::LastInstance
-        } else {
-            Left::Instance
-        }
-    }
-
-    fn len(&self) -> usize {
-        self.ids.len()
-    }
-
-    fn is_empty(&self) -> bool {
-        self.ids.is_empty()
-    }
-
-    /// The ids alive, ascending.
-    fn ids(&self) -> impl Iterator<Item = u32> + '_ {
-        self.ids.keys().copied()
-    }
-}
-
 /// What became of a received episode.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum Accepted {
@@ -842,13 +955,6 @@ enum Accepted {
     Duplicate,
     Refused,
 }
-
-/// Rounds of the adaptive mode in a row without an update before the learner gives up.
-const MAX_IDLE_ROUNDS: u64 = 1000;
-
-/// Most received episodes held between rounds of updates (every actor's transport queue is
-/// bounded too; duplicates among them are acknowledged and dropped at once).
-const MAX_PENDING: usize = 4096;
 
 /// Most actor ids a run keeps state for (accepted episodes, credits, ack publishers); more are
 /// refused. Equal to the most credit grants one control message carries.
@@ -866,494 +972,5 @@ fn warn_sometimes(
     status.error(what);
     if count.is_power_of_two() {
         tracing::warn!(kind, count, "{what} (logged at powers of two of the count)");
-    }
-}
-
-/// Runs the learner until the run's RL episodes are done or `stop` is set (then checkpoints).
-pub fn run(
-    transport: &Transport,
-    spec: &RunSpec,
-    opts: &LearnerOptions,
-    stop: &AtomicBool,
-) -> Result<LearnerExit, ProcessError> {
-    run_with_probe(transport, spec, opts, stop, crate::store::Probe::none())
-}
-
-/// [`run`] with every file-system step of the run directory reported to `probe` (tests inject a
-/// full disk through it, `crate::store::Probe`). The process's status heartbeats tell its state
-/// (starting, running; idle while no actor is alive in training; stopping; failed with why) and
-/// its last warning.
-pub fn run_with_probe(
-    transport: &Transport,
-    spec: &RunSpec,
-    opts: &LearnerOptions,
-    stop: &AtomicBool,
-    probe: crate::store::Probe,
-) -> Result<LearnerExit, ProcessError> {
-    let status = Heartbeat::new(transport)?;
-    status.finish(run_inner(transport, spec, opts, stop, probe, &status))
-}
-
-fn run_inner(
-    transport: &Transport,
-    spec: &RunSpec,
-    opts: &LearnerOptions,
-    stop: &AtomicBool,
-    probe: crate::store::Probe,
-    status: &Heartbeat,
-) -> Result<LearnerExit, ProcessError> {
-    let run = transport.run().clone();
-    // The run directory: locked for as long as this function runs (`_lock`), its log recovered
-    // from a crash mid-append, corruption refused (`store`).
-    let store = crate::store::Store::open(&opts.run_dir, probe)
-        .map_err(|e| io("cannot start the learner")(std::io::Error::other(e)))?;
-    let sim_cfg = spec.method_sim();
-
-    // State: the last checkpoint (refused if it is of another run), or a new run.
-    let expected = checkpoint::RunIdentity {
-        run_id: opts.run_id.clone(),
-        method: spec.method,
-        setting: spec.setting.name().to_string(),
-        run_seed: spec.seed,
-    };
-    let log_path = opts.run_dir.join("metrics.jsonl");
-    let (mut core, accepted_below) = match store.load_checkpoint(&expected)? {
-        Some(loaded) => {
-            tracing::info!(
-                rl_episodes = loaded.core.counters().rl_episodes,
-                "resuming from {}",
-                store.checkpoint_path().display()
-            );
-            (loaded.core, loaded.run.accepted_below)
-        }
-        None => {
-            let core = LearnerCore::new(
-                spec.method,
-                spec.train.clone(),
-                spec.sim.humans.count,
-                spec.sim.dt_s,
-                spec.seed,
-            )?;
-            (core, BTreeMap::new())
-        }
-    };
-    core.set_action_count(sim::ActionSet::for_config(&sim_cfg).len());
-    let (_lock, wal, wal_records) = store.into_parts();
-    // The log goes back to the checkpoint (the log's episodes after it are replayed below and
-    // logged again); without a checkpoint the run starts again from nothing.
-    let (rl_done, trim) = if core.counters().imitation_done || core.counters().rl_episodes > 0 {
-        (core.counters().rl_episodes, crate::runlog::Trim::Rl)
-    } else {
-        (0, crate::runlog::Trim::Restart)
-    };
-    crate::runlog::trim(&log_path, rl_done, trim)
-        .map_err(io(format!("cannot rewrite {}", log_path.display())))?;
-    let wall0 = crate::runlog::last_wall(&log_path);
-    let log = std::fs::OpenOptions::new()
-        .create(true)
-        .append(true)
-        .open(&log_path)
-        .map_err(io(format!("cannot open {}", log_path.display())))?;
-    let subscriber = transport.subscriber(&keys::all_transitions(&run))?;
-    let alive = transport.watch_alive()?;
-    let mut l = Learner {
-        t: transport,
-        status,
-        spec,
-        opts,
-        core,
-        accepted_below,
-        acks: HashMap::new(),
-        weights: transport.latest_publisher(&keys::weights(&run))?,
-        control: transport.latest_publisher(&keys::control(&run))?,
-        metrics: transport.publisher(&keys::metrics(&run, transport.sender()))?,
-        wal,
-        actors_alive: AliveActors::default(),
-        evaluators_alive: HashSet::new(),
-        alive_tokens_refused: 0,
-        window: Window {
-            outcomes: VecDeque::new(),
-            lags: VecDeque::new(),
-            losses: VecDeque::new(),
-        },
-        rejected_episodes: 0,
-        duplicates: 0,
-        out_of_order: 0,
-        refused_in_imitation: 0,
-        wal_failures: 0,
-        checkpoint_failures: 0,
-        publish_failures: 0,
-        start: Instant::now(),
-        rl_start: (Instant::now(), 0, 0),
-        wait: Duration::ZERO,
-        train: Duration::ZERO,
-        last_loss: f32::NAN,
-        sim_cfg,
-        log,
-        wall0,
-        stored: None,
-        log_failures: 0,
-        idle_rounds: 0,
-    };
-    // Episodes acknowledged after the last checkpoint: back from the log, trained on again;
-    // those the checkpoint already holds (a crash before the log was emptied) are dropped. The
-    // log stays as it is: it already holds exactly these records.
-    let plan = crate::store::replay_plan(&wal_records, &l.accepted_below);
-    l.duplicates += plan.duplicates;
-    let mut replayed = 0;
-    for msg in &plan.episodes {
-        if l.accept(
-            msg.header.sender.index,
-            &msg.body,
-            msg.header.policy_version,
-            false,
-        )? {
-            l.train_stored()?;
-            replayed += 1;
-        }
-    }
-    if plan.unreadable > 0 {
-        tracing::warn!(
-            records = plan.unreadable,
-            "skipped write-ahead log records that are not an actor's episode"
-        );
-    }
-    if !wal_records.is_empty() {
-        tracing::info!(
-            replayed,
-            duplicates = plan.duplicates,
-            "write-ahead log replayed"
-        );
-    }
-    let _token = transport.declare_alive()?;
-    status.set_state(ProcessState::Running);
-    l.publish_control();
-    l.publish_metrics()?;
-
-    if !l.core.counters().imitation_done {
-        let mut last = Instant::now();
-        let metrics = transport.publisher(&keys::metrics(&run, transport.sender()))?;
-        let mut refused = 0u64;
-        // The imitation lines of the log, written once the warm start is done (as in one
-        // process).
-        let mut log = crate::runlog::ImitationLog::default();
-        let (wall0, start) = (l.wall0, l.start);
-        // What the metrics tick shows: the newest demonstration count or finished epoch.
-        #[derive(Clone, Copy)]
-        enum Shown {
-            Demo(u64, u64),
-            Epoch(u32, u32, f32),
-        }
-        let mut shown = Shown::Demo(0, spec.train.imitation.episodes);
-        let (actors_alive, evaluators_alive) = (&mut l.actors_alive, &mut l.evaluators_alive);
-        let finished = imitation::run(&mut l.core, spec, stop, |p| {
-            log.observe(&p, (wall0 + start.elapsed()).as_secs_f64());
-            status.beat();
-            // Who is alive, as in training: the watcher's queue is bounded and, once full,
-            // leaves the zenoh thread that fills it waiting. Actors that join are acknowledged
-            // when training starts.
-            while let Ok(Some(ev)) = alive.recv_timeout(Duration::ZERO) {
-                track_alive(actors_alive, evaluators_alive, status, ev);
-            }
-            // Nobody should send episodes now (actors wait for the training phase): drain and
-            // count, so nothing piles up in the subscriber's queue during imitation. Progress
-            // comes after every demonstration and every batch, so a long epoch cannot leave the
-            // queue (and the router's link to this process) full.
-            while let Ok(Some(msg)) = subscriber.try_recv() {
-                refused += 1;
-                warn_sometimes(
-                    status,
-                    "imitation",
-                    refused,
-                    format_args!(
-                        "refused episode {} of {} during imitation",
-                        msg.body.episode, msg.header.sender
-                    ),
-                );
-            }
-            match p {
-                ImitationProgress::Demo { done, total } => shown = Shown::Demo(done, total),
-                ImitationProgress::DemosDone { .. } => {}
-                ImitationProgress::Batch { .. } => {}
-                ImitationProgress::Epoch { done, total, loss } => {
-                    shown = Shown::Epoch(done, total, loss)
-                }
-            }
-            if last.elapsed() >= opts.metrics_interval {
-                last = Instant::now();
-                let mut m = Metrics::default();
-                match shown {
-                    Shown::Demo(done, total) => {
-                        m.values.insert("demo_episodes".into(), done as f64);
-                        m.values.insert("demo_target".into(), total as f64);
-                    }
-                    Shown::Epoch(done, total, loss) => {
-                        m.values.insert("imitation_epoch".into(), done as f64);
-                        m.values.insert("imitation_epochs".into(), total as f64);
-                        m.values.insert("loss".into(), loss as f64);
-                    }
-                }
-                m.values
-                    .insert("refused_in_imitation".into(), refused as f64);
-                m.values
-                    .insert("actors_alive".into(), actors_alive.len() as f64);
-                let _ = metrics.publish(0, &m);
-            }
-        })?;
-        l.refused_in_imitation = refused;
-        if !finished {
-            return Ok(LearnerExit::Stopped);
-        }
-        for line in log.lines() {
-            l.log_line(&line);
-        }
-        // The warm start is only in memory until this checkpoint: on a full disk, retry with
-        // back-off (each failure counted and logged) instead of dying and redoing it.
-        let mut retry_in = Duration::from_millis(500);
-        while !l.try_checkpoint() {
-            if stop.load(Ordering::SeqCst) {
-                tracing::error!("stopped before the checkpoint after imitation could be written; the warm start is done again on the next start");
-                return Ok(LearnerExit::Stopped);
-            }
-            tracing::warn!(
-                retry_in_ms = retry_in.as_millis() as u64,
-                "the checkpoint after imitation failed (free disk space in the run directory); retrying"
-            );
-            std::thread::sleep(retry_in);
-            retry_in = (retry_in * 2).min(Duration::from_secs(30));
-        }
-        tracing::info!(transitions = l.core.replay().len(), "imitation done");
-    }
-    l.rl_start = (
-        Instant::now(),
-        l.core.counters().rl_episodes,
-        l.core.counters().updates,
-    );
-    l.publish_weights()?;
-    l.publish_control();
-    // The actors that joined during the warm start learn where to go on; the first metrics
-    // of training name where its replay ratio is counted from (`rl_start_*`).
-    for id in l.live_actor_ids() {
-        l.ack(id);
-    }
-    l.publish_metrics()?;
-    let mut last_tick = Instant::now();
-    let every = spec.train.checkpoint_every_episodes;
-    let mut checkpoint_due = false;
-    let mut pending = VecDeque::new();
-    let mut published_since_tick = true;
-    let ratio = spec.train.rl.replay_ratio;
-
-    while l.phase() == RunPhase::Training {
-        if stop.load(Ordering::SeqCst) {
-            status.set_state(ProcessState::Stopping);
-            l.checkpoint()?;
-            return Ok(LearnerExit::Stopped);
-        }
-        let mut membership_changed = false;
-        while let Some(ev) = alive.recv_timeout(Duration::ZERO)? {
-            membership_changed |= l.on_alive(ev);
-        }
-        // Idle while no actor is alive (nothing can arrive), running otherwise.
-        status.set_state(if l.actors_alive.is_empty() {
-            ProcessState::Idle
-        } else {
-            ProcessState::Running
-        });
-        status.beat();
-        if membership_changed {
-            l.publish_control();
-        }
-        if last_tick.elapsed() >= opts.metrics_interval {
-            last_tick = Instant::now();
-            l.alive_tokens_refused = alive.refused_count()?;
-            l.publish_metrics()?;
-            if !published_since_tick {
-                // Weights and control are dropped for a subscriber that does not keep up
-                // (`transport`): with nothing newer to send, the current values again.
-                l.republish_latest();
-            }
-            published_since_tick = false;
-            // Re-acknowledge periodically: an actor that missed an ack learns where to go on.
-            for id in l.live_actor_ids() {
-                l.ack(id);
-            }
-            if checkpoint_due {
-                // A checkpoint failed earlier (a full disk): try again.
-                checkpoint_due = !l.try_checkpoint();
-            }
-        }
-        // The adaptive mode (`train.rl.replay_ratio`): may the learner take the next episode
-        // (it has done at least `min` updates per episode taken), and may it train without one
-        // (fewer than `max` per episode)? The fixed schedule takes every episode and trains on it.
-        let (episodes, updates) = l.rl_progress();
-        let (may_take, may_train) = match ratio {
-            None => (true, false),
-            Some(r) => (
-                updates as f64 >= r.min * episodes as f64,
-                (updates as f64) < r.max * episodes as f64 && !l.core.replay().is_empty(),
-            ),
-        };
-        // Everything the transport holds is taken in before one episode is trained on: a
-        // transport that serves its senders in a fixed order (iceoryx2 reads its publishers'
-        // queues one after the other) would otherwise hand over the first actor's next
-        // episode every time and starve the others until their queues fill up. Arrivals are
-        // then trained in the order they came, one per round of updates.
-        if pending.is_empty() && !may_train {
-            let waited = Instant::now();
-            let first = subscriber.recv_timeout(Duration::from_millis(50))?;
-            l.wait += waited.elapsed();
-            pending.extend(first);
-        }
-        while pending.len() < MAX_PENDING {
-            match subscriber.try_recv()? {
-                Some(m) => pending.push_back(m),
-                None => break,
-            }
-        }
-        if !may_take || pending.is_empty() {
-            if may_train {
-                // Train on: a round of at most `batches_per_episode` updates, no further than
-                // `max` per episode; new weights go out after each round (a bounded rate,
-                // whatever the number of actors).
-                let r = ratio.expect("may_train only in the adaptive mode");
-                let room = (r.max * episodes as f64).ceil() as u64 - updates;
-                let batches = room.clamp(1, spec.train.rl.batches_per_episode.max(1) as u64);
-                l.train_round(batches as u32)?;
-                l.publish_weights()?;
-                published_since_tick = true;
-            }
-            continue;
-        }
-        let Some(msg) = pending.pop_front() else {
-            continue;
-        };
-        if l.take(msg) != Accepted::Stored {
-            continue;
-        }
-        if ratio.is_some() {
-            l.log_stored();
-        } else {
-            l.train_stored()?;
-            l.publish_weights()?;
-        }
-        if l.phase() != RunPhase::Training {
-            // The last episode: "finished" goes out only after the final weights (below), so
-            // that what the evaluator takes as the run's last weights are those (issue 44).
-            break;
-        }
-        l.publish_control();
-        published_since_tick = true;
-        let done = l.core.counters().rl_episodes;
-        if (every > 0 && done.is_multiple_of(every)) || checkpoint_due {
-            checkpoint_due = !l.try_checkpoint();
-        }
-    }
-    if let (Some(r), RunPhase::Finished) = (ratio, l.phase()) {
-        // The last episodes taken get their share too: at least `min` updates per episode.
-        loop {
-            let (episodes, updates) = l.rl_progress();
-            let owed = (r.min * episodes as f64).ceil() as u64;
-            if updates >= owed || l.core.replay().is_empty() || stop.load(Ordering::SeqCst) {
-                break;
-            }
-            let batches = (owed - updates).min(spec.train.rl.batches_per_episode.max(1) as u64);
-            l.train_round(batches as u32)?;
-        }
-    }
-
-    // The run is over: the final weights (carrying the final RL episode count) before the
-    // `Finished` control, which names their version (its header's policy version): an evaluator
-    // that sees `Finished` validates weights of at least that version.
-    l.checkpoint()?;
-    l.publish_weights()?;
-    l.publish_control();
-    l.publish_metrics()?;
-    tracing::info!(
-        rl_episodes = l.core.counters().rl_episodes,
-        "run finished; waiting for actors and evaluators to leave"
-    );
-    status.set_state(ProcessState::Stopping);
-    let deadline = Instant::now() + opts.linger;
-    let mut last_repeat = Instant::now();
-    while Instant::now() < deadline && !(l.actors_alive.is_empty() && l.evaluators_alive.is_empty())
-    {
-        status.beat();
-        // The final weights and the `Finished` control reach a subscriber they were dropped for.
-        if last_repeat.elapsed() >= opts.metrics_interval {
-            last_repeat = Instant::now();
-            l.republish_latest();
-        }
-        if let Some(ev) = alive.recv_timeout(Duration::from_millis(100))? {
-            match ev {
-                AliveEvent::Left(m) if m.sender.role == Role::Actor => {
-                    l.on_alive(ev);
-                }
-                AliveEvent::Left(m) => {
-                    l.evaluators_alive.remove(&m);
-                }
-                AliveEvent::Joined(m) if m.sender.role == Role::Actor => {
-                    l.on_alive(ev);
-                }
-                AliveEvent::Joined(m) if m.sender.role == Role::Evaluator => {
-                    l.evaluators_alive.insert(m);
-                }
-                _ => {}
-            }
-        }
-        if stop.load(Ordering::SeqCst) {
-            break;
-        }
-    }
-    Ok(LearnerExit::Finished)
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    /// Issue 35, item 1: the cap counts actor ids, not liveliness tokens, so one id's flood of
-    /// instances (under its own credentials) leaves room for every other actor.
-    #[test]
-    fn a_flood_of_one_ids_instances_takes_one_place() {
-        let mut alive = AliveActors::default();
-        assert_eq!(alive.join(0, 1, 3), Joined::NewId);
-        for instance in 2..5000 {
-            assert_eq!(alive.join(0, instance, 3), Joined::NewInstance);
-        }
-        assert_eq!(alive.join(0, 7, 3), Joined::Known);
-        assert_eq!(alive.len(), 1);
-        assert_eq!(alive.join(1, 1, 3), Joined::NewId);
-        assert_eq!(alive.join(2, 1, 3), Joined::NewId);
-        assert_eq!(alive.join(3, 1, 3), Joined::Refused);
-        assert_eq!(alive.refused, 1);
-        assert_eq!(alive.ids().collect::<Vec<_>>(), [0, 1, 2]);
-        // Id 0 stays until its last instance leaves; then id 3 gets the place.
-        assert_eq!(alive.leave(0, 1), Left::Instance);
-        assert_eq!(alive.leave(0, 1), Left::Unknown);
-        for instance in 2..4999 {
-            assert_eq!(alive.leave(0, instance), Left::Instance);
-        }
-        assert_eq!(alive.leave(0, 4999), Left::LastInstance);
-        assert_eq!(alive.leave(9, 1), Left::Unknown);
-        assert_eq!(alive.join(3, 1, 3), Joined::NewId);
-        assert!(!alive.is_empty());
-    }
-
-    #[test]
-    fn the_lag_quantile_is_the_nearest_rank() {
-        let mut w = Window {
-            outcomes: VecDeque::new(),
-            lags: VecDeque::new(),
-            losses: VecDeque::new(),
-        };
-        assert_eq!(w.lag_quantile(0.95), 0);
-        for lag in [3, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 7] {
-            w.push(Outcome::ReachGoal, lag, 0.0);
-        }
-        // 20 lags: the 19th smallest is 3, the largest 7.
-        assert_eq!(w.lag_quantile(0.95), 3);
-        assert_eq!(w.lag_quantile(1.0), 7);
-        assert_eq!(w.lag_quantile(0.5), 1);
     }
 }
