@@ -11,7 +11,7 @@ use sim::{
 };
 
 /// CrowdNav's holonomic ORCA robot on its 500 test scenes with 10 humans, as CrowdNav reports it
-/// (`shared/data/crowdnav_cases/README.md`; the paper's ORCA row): success, collision, timeout,
+/// (`testdata/crowdnav_cases/README.md`; the paper's ORCA row): success, collision, timeout,
 /// nav time (s), danger steps / steps; invisible then visible.
 const CROWDNAV_ORCA_H10: [(bool, [f64; 5]); 2] = [
     (false, [0.210, 0.790, 0.000, 12.49, 0.392]),
@@ -98,7 +98,7 @@ pub fn run_scene_cases(
     })
 }
 
-/// The table of `shared/data/crowdnav_cases/README.md`: one row per visibility, with CrowdNav's
+/// The table of `testdata/crowdnav_cases/README.md`: one row per visibility, with CrowdNav's
 /// reported numbers beside ours when `crowdnav_reference`.
 pub fn scenes_table(
     results: &[(bool, Aggregate)],
@@ -282,12 +282,13 @@ mod tests {
     }
 
     #[test]
-    fn the_shared_crowdnav_scenes_are_recognised() {
-        let path = Path::new(env!("CARGO_MANIFEST_DIR"))
-            .join("../../shared/data/crowdnav_cases/test_h10_scenes.csv");
-        let Ok(file) = load_scenes(&path, &SimConfig::default()) else {
-            return; // the shared data is not on this machine
-        };
+    fn the_repositorys_crowdnav_scenes_are_recognised() {
+        let path = Path::new(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../testdata/crowdnav_cases/test_h10_scenes.csv"
+        ));
+        let file = load_scenes(path, &SimConfig::default())
+            .unwrap_or_else(|e| panic!("the repository's CrowdNav scenes: {e:#}"));
         assert!(is_crowdnav_h10_test_set(&file));
     }
 }
