@@ -9,9 +9,9 @@
 //! - the last (linear) layer of `mlp2` commutes with the attention-weighted sum because the
 //!   weights sum to one: `Σ_i w_i (z_i Wᵀ + b) = (Σ_i w_i z_i) Wᵀ + b`, so it runs once per sample.
 
+use crate::batch::StateBatch;
 use crate::config::{Linear, LstmIndex, Mat, SarlIndex};
 use crate::kernels::{dot, gemm, relu_inplace, Threads, View};
-use crate::net::StateBatch;
 use crate::{FEATURE_DIM, ROBOT_DIM};
 
 /// Reusable buffers for [`crate::ValueNet::values_into`]; also keeps the last attention weights.

@@ -32,8 +32,7 @@ use dfdx::prelude::*;
 use crate::config::{Linear, LstmIndex, Mat, NetIndex, SarlIndex};
 use crate::fast::{lstm_cell, masked_softmax};
 use crate::kernels::{add_column_sums, dot, gemm, relu_inplace, Threads, View};
-use crate::net::{StateBatch, ValueNet};
-use crate::{PolicyError, FEATURE_DIM, ROBOT_DIM};
+use crate::{PolicyError, StateBatch, ValueNet, FEATURE_DIM, ROBOT_DIM};
 
 type Tp = OwnedTape<f32, Cpu>;
 type T2 = Tensor<(usize, usize), f32, Cpu>;

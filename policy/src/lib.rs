@@ -10,6 +10,7 @@
 //!   [`train::Trainer`] adds Adam ([`optim::Adam`]) and a target network.
 //! - Weights and optimiser state are saved and loaded bit-exactly ([`codec`]).
 
+mod batch;
 pub mod codec;
 pub mod config;
 mod error;
@@ -29,10 +30,11 @@ mod tests;
 pub mod train;
 pub mod wire;
 
+pub use batch::StateBatch;
 pub use config::{LstmRlConfig, NetConfig, NetKind, ParamLayout, ParamSpec, SarlConfig};
 pub use error::PolicyError;
 pub use fast::Scratch;
-pub use net::{StateBatch, ValueNet};
+pub use net::ValueNet;
 
 /// Robot features at the start of every row: `[d_g, v_pref, θ_rel, r, v_x, v_y]`.
 pub const ROBOT_DIM: usize = 6;
