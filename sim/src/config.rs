@@ -20,6 +20,16 @@ pub enum EnvKind {
     Env3,
 }
 
+/// Env 3's fixed standing humans: a cup of three, concave toward the robot's start, with gaps
+/// narrower than the robot, and a wall of two.
+pub const ENV3_TRAPS: [[f64; 2]; 5] = [
+    [-0.6, -1.2],
+    [0.0, -0.9],
+    [0.6, -1.2],
+    [0.9, 1.5],
+    [1.5, 1.5],
+];
+
 /// One of the six settings: an environment and whether the humans see the robot.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
 pub struct Setting {
@@ -587,12 +597,10 @@ impl SimConfig {
         for name in names {
             match name.as_ref().parse::<Setting>() {
                 Ok(s) => {
-                    if s.env == EnvKind::Env3
-                        && self.humans.standing != crate::scenario::ENV3_TRAPS.len()
-                    {
+                    if s.env == EnvKind::Env3 && self.humans.standing != ENV3_TRAPS.len() {
                         c.0.push(format!(
                             "{s} has {} fixed standing humans; humans.standing is {}",
-                            crate::scenario::ENV3_TRAPS.len(),
+                            ENV3_TRAPS.len(),
                             self.humans.standing
                         ));
                     }

@@ -9,15 +9,8 @@ use crate::config::{EnvKind, Setting, SimConfig};
 use crate::geom::{heading, Vec2};
 use crate::robot::RobotState;
 
-/// Env 3's fixed standing humans: a cup of three, concave toward the robot's start, with gaps
-/// narrower than the robot, and a wall of two.
-pub const ENV3_TRAPS: [[f64; 2]; 5] = [
-    [-0.6, -1.2],
-    [0.0, -0.9],
-    [0.6, -1.2],
-    [0.9, 1.5],
-    [1.5, 1.5],
-];
+// Env 3's fixed standing humans live in `config`, beside `EnvKind` (its check counts them).
+pub use crate::config::ENV3_TRAPS;
 
 /// A human: position, velocity and goal in the world frame.
 #[derive(Debug, Clone, Copy, PartialEq)]
