@@ -17,7 +17,7 @@ use std::mem::MaybeUninit;
 use serde::de::IgnoredAny;
 use serde::{Deserialize, Serialize};
 
-use crate::direct::Reader;
+use crate::direct::{Reader, MAX_DEPTH};
 use crate::error::{DecodeError, EncodeError, ValidationError};
 use crate::header::{Body, Header, Message, MessageRef};
 use crate::PROTOCOL_VERSION;
@@ -224,9 +224,6 @@ pub fn probe_protocol_version(bytes: &[u8]) -> Option<u16> {
     let version = Reader::new(header).field(0, "protocol_version")?;
     u16::try_from(Reader::new(version).uint()?).ok()
 }
-
-/// Nesting depth accepted when decoding (our messages nest at most 4 levels).
-pub(crate) const MAX_DEPTH: usize = 32;
 
 fn map_rmp_error(e: rmp_serde::decode::Error) -> DecodeError {
     use rmp_serde::decode::Error as E;

@@ -16,10 +16,46 @@
 
 use std::mem::MaybeUninit;
 
-use crate::codec::MAX_DEPTH;
-use crate::header::{Header, Message, MessageKind};
+use crate::error::ValidationError;
+use crate::header::{Body, Header, Message, MessageKind};
 use crate::ids::{Role, RunId, SenderId};
 use crate::transitions::{Outcome, TransitionBatch};
+
+/// Nesting depth accepted when decoding, here and by serde in [`crate::codec`] (our messages
+/// nest at most 4 levels).
+pub(crate) const MAX_DEPTH: usize = 32;
+
+/// A batch is a [`Body`] whose encoding and decoding try the hand-written path of this module
+/// first; its checks are `TransitionBatch::check`, in `transitions.rs`.
+impl Body for TransitionBatch {
+    const KIND: MessageKind = MessageKind::TransitionBatch;
+
+    fn encode_direct(header: &Header, body: &Self, buf: &mut Vec<u8>) -> bool {
+        buf.reserve(body.approx_encoded_len());
+        encode_batch(header, body, buf);
+        true
+    }
+
+    fn direct_len(header: &Header, body: &Self) -> Option<usize> {
+        let mut n = Counter(0);
+        encode_batch(header, body, &mut n);
+        Some(n.0)
+    }
+
+    fn direct_write(header: &Header, body: &Self, out: &mut [MaybeUninit<u8>]) -> bool {
+        let mut w = Uninit::new(out);
+        encode_batch(header, body, &mut w);
+        w.filled()
+    }
+
+    fn decode_direct(bytes: &[u8]) -> Option<Message<Self>> {
+        decode_batch(bytes)
+    }
+
+    fn validate(&self) -> Result<(), ValidationError> {
+        self.check()
+    }
+}
 
 // ---------------------------------------------------------------------------------------------
 // Writing (the same marker choices as rmp: the smallest that holds the value or length), into

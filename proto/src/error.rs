@@ -2,7 +2,7 @@
 
 use thiserror::Error;
 
-use crate::header::MessageKind;
+use crate::kind::MessageKind;
 
 /// A message that decoded structurally but breaks an invariant (also checked before encoding).
 #[derive(Debug, Clone, PartialEq, Error)]

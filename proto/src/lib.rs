@@ -60,6 +60,7 @@ pub mod fixtures;
 pub mod header;
 pub mod ids;
 pub mod keys;
+mod kind;
 pub mod reports;
 pub mod serve;
 pub mod transitions;
@@ -71,9 +72,10 @@ pub use codec::{
 };
 pub use control::{Ack, Control, CreditGrant, RunPhase};
 pub use error::{DecodeError, EncodeError, ValidationError};
-pub use header::{Body, Header, Message, MessageKind};
+pub use header::{Body, Header, Message};
 pub use ids::{Role, RunId, SenderId};
 pub use keys::{Delivery, Fanout, Member, Plane, Topic};
+pub use kind::MessageKind;
 pub use reports::{EvalReport, Metrics, ProcessState, SettingReport, Status};
 pub use transitions::{
     EpisodeMeta, HumanState, Outcome, RewardTerms, RobotState, TransitionBatch,

@@ -1,12 +1,10 @@
 //! [`TransitionBatch`]: one finished episode, or a chunk of one, in a columnar layout.
 
-use std::mem::MaybeUninit;
-
 use serde::{Deserialize, Serialize};
 
 use crate::columns::{check_finite, check_len, check_max, check_name, f32_le};
 use crate::error::ValidationError;
-use crate::header::{Body, Header, Message, MessageKind};
+use crate::header::Body;
 
 /// Most humans a batch may describe.
 pub const MAX_HUMANS: u32 = 256;
@@ -261,32 +259,10 @@ impl TransitionBatch {
     }
 }
 
-impl Body for TransitionBatch {
-    const KIND: MessageKind = MessageKind::TransitionBatch;
-
-    fn encode_direct(header: &Header, body: &Self, buf: &mut Vec<u8>) -> bool {
-        buf.reserve(body.approx_encoded_len());
-        crate::direct::encode_batch(header, body, buf);
-        true
-    }
-
-    fn direct_len(header: &Header, body: &Self) -> Option<usize> {
-        let mut n = crate::direct::Counter(0);
-        crate::direct::encode_batch(header, body, &mut n);
-        Some(n.0)
-    }
-
-    fn direct_write(header: &Header, body: &Self, out: &mut [MaybeUninit<u8>]) -> bool {
-        let mut w = crate::direct::Uninit::new(out);
-        crate::direct::encode_batch(header, body, &mut w);
-        w.filled()
-    }
-
-    fn decode_direct(bytes: &[u8]) -> Option<Message<Self>> {
-        crate::direct::decode_batch(bytes)
-    }
-
-    fn validate(&self) -> Result<(), ValidationError> {
+impl TransitionBatch {
+    /// [`Body::validate`] of a batch (its `Body` impl is in `direct.rs`, beside the
+    /// hand-written encoding it selects).
+    pub(crate) fn check(&self) -> Result<(), ValidationError> {
         check_name("setting", &self.setting, MAX_SETTING_LEN)?;
         check_max("n_humans", self.n_humans.into(), MAX_HUMANS.into())?;
         check_max("n_steps", self.n_steps.into(), MAX_STEPS_PER_BATCH.into())?;
