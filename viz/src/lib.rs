@@ -21,6 +21,7 @@ mod ablation;
 mod bars;
 mod curves;
 mod episode;
+mod error;
 pub mod fonts;
 mod frontier;
 pub mod metrics;
@@ -38,29 +39,8 @@ pub use curves::{
     ValidationCurves,
 };
 pub use episode::{save_gif, EpisodeTrace, HumanInfo, TraceFrame, Trajectory, GIF_HOLD_FRAMES};
+pub use error::VizError;
 pub use frontier::{Frontier, FrontierGroup, FrontierPanel};
-
-/// Why a picture could not be made.
-#[derive(Debug, thiserror::Error)]
-pub enum VizError {
-    #[error("no font to draw text with: {0}")]
-    Font(String),
-    #[error("cannot draw {path}: {reason}")]
-    Draw { path: PathBuf, reason: String },
-    #[error("{path}: {source}")]
-    Io {
-        path: PathBuf,
-        source: std::io::Error,
-    },
-    #[error("{path}:{line}: {reason}")]
-    Metrics {
-        path: PathBuf,
-        line: usize,
-        reason: String,
-    },
-    #[error("nothing to draw: {0}")]
-    Empty(String),
-}
 
 /// A drawing failure inside a figure, before it is tied to a file.
 #[derive(Debug)]
