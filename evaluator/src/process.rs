@@ -3,13 +3,15 @@
 
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::time::Duration;
+use std::sync::Arc;
+use std::time::{Duration, Instant};
 
 use policy::method::RunSpec;
 use policy::wire::net_from_weights;
-use proto::{keys, EvalReport, ProcessState, RunPhase};
+use policy::{NetConfig, ValueNet};
+use proto::{keys, EvalReport, Message, ProcessState, RunPhase};
 use sim::Setting;
-use transport::{Heartbeat, Transport, TransportError};
+use transport::{AliveToken, Heartbeat, LatestSubscriber, Publisher, Transport, TransportError};
 
 use crate::{evaluate, EvalError, SettingResult, Subject};
 
@@ -319,189 +321,390 @@ fn run_inner(
     let net_cfg = spec.method.net().ok_or_else(|| {
         ProcessError::Other(format!("method {} has no weights to evaluate", spec.method))
     })?;
-    let run = transport.run().clone();
-    let weights = transport.latest_subscriber(&keys::weights(&run))?;
-    let control = transport.latest_subscriber(&keys::control(&run))?;
-    let reports = transport.publisher(&keys::eval_report(&run, transport.sender().index))?;
-    let _token = transport.declare_alive()?;
-    let metrics = transport.publisher(&keys::metrics(&run, transport.sender()))?;
-    let il_epochs = spec.train.imitation.epochs as u64;
-    let mut next_due = opts.every_episodes;
-    let mut evaluated: Option<u64> = None;
-    // The learning curve: the run's own setting on the validation seeds (never the test seeds).
-    let val_every = spec.train.validation_every_episodes;
-    // A restarted evaluator goes on from the next validation due (none is done twice).
-    let mut next_val_due = next_validation_due(&opts.out_dir, val_every);
-    if next_val_due > 0 {
-        tracing::info!(next_val_due, "validations already done; going on");
-    }
-    let mut validated: Option<u64> = None;
-    let started = std::time::Instant::now();
-    // Where the time goes: scoring (validations, reports) against waiting for weights.
-    let mut busy = Duration::ZERO;
-    let mut validations = 0u64;
-    // Weights that do not fit this run's network (counted, skipped; never fatal until the end).
-    let mut bad_weights = 0u64;
-    let mut unusable: Option<u64> = None;
-    // The last version looked at: when the weights go back (a learner restarted from an older
-    // checkpoint, or a rogue high version that was followed), the due points go back with
-    // them, so no version, however high, silences evaluation or validation until the learner
-    // passes it.
-    let mut last_version: Option<u64> = None;
-    // When the learner was first seen finished with newer weights than those here.
-    let mut finished_seen: Option<std::time::Instant> = None;
+    let mut evaluator = Evaluator {
+        spec,
+        opts,
+        keep,
+        status,
+        net_cfg,
+        il_epochs: spec.train.imitation.epochs as u64,
+        links: Links::open(transport)?,
+        schedule: Schedule::new(spec, opts),
+        tally: Tally::new(),
+        finished_seen: None,
+    };
     loop {
         if stop.load(Ordering::SeqCst) {
             return Ok(EvaluatorExit::Stopped);
         }
-        status.progress(0, validations);
-        status.beat();
-        // The learner sends its final weights before `Finished`, whose header names their
-        // version: until weights at least that new are here, the run's last weights are not.
-        let final_version = control
+        if let Some(exit) = evaluator.step()? {
+            return Ok(exit);
+        }
+    }
+}
+
+/// Waiting for weights between two looks at them.
+const WEIGHTS_POLL: Duration = Duration::from_millis(200);
+
+/// The evaluator's end of the run's topics, declared in this order: weights and control in,
+/// reports out, its liveliness token, its metrics out.
+struct Links {
+    weights: LatestSubscriber<proto::Weights>,
+    control: LatestSubscriber<proto::Control>,
+    reports: Publisher<EvalReport>,
+    _alive: AliveToken,
+    metrics: Publisher<proto::Metrics>,
+}
+
+impl Links {
+    fn open(transport: &Transport) -> Result<Self, ProcessError> {
+        let run = transport.run().clone();
+        let weights = transport.latest_subscriber(&keys::weights(&run))?;
+        let control = transport.latest_subscriber(&keys::control(&run))?;
+        let reports = transport.publisher(&keys::eval_report(&run, transport.sender().index))?;
+        let alive = transport.declare_alive()?;
+        let metrics = transport.publisher(&keys::metrics(&run, transport.sender()))?;
+        Ok(Self {
+            weights,
+            control,
+            reports,
+            _alive: alive,
+            metrics,
+        })
+    }
+
+    /// Waits (at most [`WEIGHTS_POLL`]) for newer weights.
+    fn wait(&self) -> Result<(), ProcessError> {
+        let _ = self.weights.next(WEIGHTS_POLL)?;
+        Ok(())
+    }
+}
+
+/// Which weights are due: a report every `opts.every_episodes` RL episodes and a validation
+/// point every `validation_every_episodes`, each at most once per version.
+struct Schedule {
+    every: u64,
+    next_due: u64,
+    evaluated: Option<u64>,
+    val_every: u64,
+    next_val_due: u64,
+    validated: Option<u64>,
+    /// The last version looked at: when the weights go back (a learner restarted from an older
+    /// checkpoint, or a rogue high version that was followed), the due points go back with
+    /// them, so no version, however high, silences evaluation or validation until the learner
+    /// passes it.
+    last_version: Option<u64>,
+}
+
+impl Schedule {
+    fn new(spec: &RunSpec, opts: &EvaluatorOptions) -> Self {
+        // The learning curve: the run's own setting on the validation seeds (never the test
+        // seeds).
+        let val_every = spec.train.validation_every_episodes;
+        // A restarted evaluator goes on from the next validation due (none is done twice).
+        let next_val_due = next_validation_due(&opts.out_dir, val_every);
+        if next_val_due > 0 {
+            tracing::info!(next_val_due, "validations already done; going on");
+        }
+        Self {
+            every: opts.every_episodes,
+            next_due: opts.every_episodes,
+            evaluated: None,
+            val_every,
+            next_val_due,
+            validated: None,
+            last_version: None,
+        }
+    }
+
+    /// Looks at weights `version`, trained for `trained` RL episodes: brings the due points
+    /// back if the version went back.
+    fn follow(&mut self, version: u64, trained: u64) {
+        if self.last_version.is_some_and(|last| version < last) {
+            let back = trained.saturating_sub(1);
+            tracing::warn!(
+                version,
+                last = self.last_version,
+                "the weights went back to an older version; following them"
+            );
+            if self.every > 0 {
+                self.next_due = self.next_due.min(due_after(back, self.every));
+            }
+            if self.val_every > 0 {
+                self.next_val_due = self.next_val_due.min(due_after(back, self.val_every));
+            }
+        }
+        self.last_version = Some(version);
+    }
+
+    fn report_due(&self, version: u64, trained: u64) -> bool {
+        self.every > 0 && trained >= self.next_due && self.evaluated != Some(version)
+    }
+
+    /// Imitation bumps the version once per epoch: a validation point needs RL weights
+    /// (`version >= il_epochs`). The run's end always takes one.
+    fn validation_due(
+        &self,
+        spec: &RunSpec,
+        il_epochs: u64,
+        version: u64,
+        trained: u64,
+        finished: bool,
+    ) -> bool {
+        self.val_every > 0
+            && spec.train.validation_episodes > 0
+            && version >= il_epochs
+            && self.validated != Some(version)
+            && (trained >= self.next_val_due || finished)
+    }
+
+    fn validated(&mut self, version: u64, trained: u64) {
+        self.validated = Some(version);
+        self.next_val_due = due_after(trained, self.val_every);
+    }
+
+    fn reported(&mut self, version: u64, trained: u64) {
+        self.evaluated = Some(version);
+        if self.every > 0 {
+            self.next_due = due_after(trained, self.every);
+        }
+    }
+}
+
+/// What the evaluator counts: where the time goes (scoring against waiting for weights), the
+/// validations done, and weights that do not fit this run's network (counted, skipped; never
+/// fatal until the end).
+struct Tally {
+    started: Instant,
+    busy: Duration,
+    validations: u64,
+    bad_weights: u64,
+    unusable: Option<u64>,
+}
+
+impl Tally {
+    fn new() -> Self {
+        Self {
+            started: Instant::now(),
+            busy: Duration::ZERO,
+            validations: 0,
+            bad_weights: 0,
+            unusable: None,
+        }
+    }
+}
+
+/// Weights that arrived and may be scored: `finished` once they are the run's last.
+struct Arrived {
+    weights: Arc<Message<proto::Weights>>,
+    finished: bool,
+}
+
+/// One evaluator at work: the run it follows, its links, its schedule and its tally.
+struct Evaluator<'a> {
+    spec: &'a RunSpec,
+    opts: &'a EvaluatorOptions,
+    keep: Option<KeepSnapshot<'a>>,
+    status: &'a Heartbeat,
+    net_cfg: NetConfig,
+    il_epochs: u64,
+    links: Links,
+    schedule: Schedule,
+    tally: Tally,
+    /// When the learner was first seen finished with newer weights than those here.
+    finished_seen: Option<Instant>,
+}
+
+impl Evaluator<'_> {
+    /// One look at the newest weights: scores them if they are due (a validation point, a
+    /// report, the final report), waits otherwise. `Some` when the evaluator is done.
+    fn step(&mut self) -> Result<Option<EvaluatorExit>, ProcessError> {
+        self.status.progress(0, self.tally.validations);
+        self.status.beat();
+        let Some(Arrived { weights, finished }) = self.newest_weights()? else {
+            return Ok(None);
+        };
+        let version = weights.body.version;
+        // The RL episodes the weights were trained on, as the learner says; a learner that does
+        // not say advanced its version once per imitation epoch and once per RL episode.
+        let trained = weights
+            .body
+            .rl_episodes
+            .unwrap_or_else(|| version.saturating_sub(self.il_epochs));
+        self.schedule.follow(version, trained);
+        let report_due = self.schedule.report_due(version, trained);
+        let validation_due =
+            self.schedule
+                .validation_due(self.spec, self.il_epochs, version, trained, finished);
+        if !(validation_due || report_due || finished) {
+            self.status.set_state(ProcessState::Idle);
+            self.links.wait()?;
+            return Ok(None);
+        }
+        if self.tally.unusable == Some(version) {
+            if finished {
+                return Err(ProcessError::Other(format!(
+                    "the run's final weights (version {version}) are unusable; see the warnings"
+                )));
+            }
+            self.links.wait()?;
+            return Ok(None);
+        }
+        // Decoded once per version that is due, for the validation point and the report.
+        let Some(net) = self.decode(&weights.body) else {
+            return Ok(None);
+        };
+        self.status.set_state(ProcessState::Running);
+        if validation_due {
+            self.validation_point(&net, version, trained)?;
+        }
+        if finished && !self.opts.final_report {
+            return Ok(Some(EvaluatorExit::Finished(None)));
+        }
+        if !(finished || report_due) {
+            self.links.wait()?;
+            return Ok(None);
+        }
+        let r = self.score_and_report(&net, version, trained, finished)?;
+        if finished {
+            write(self.opts, "report", &r, self.spec.method.name(), version)?;
+            return Ok(Some(EvaluatorExit::Finished(Some(r))));
+        }
+        Ok(None)
+    }
+
+    /// The newest weights, or `None` after waiting for some. The learner sends its final
+    /// weights before `Finished`, whose header names their version: until weights at least that
+    /// new are here, the run's last weights are not (an error after
+    /// [`FINAL_WEIGHTS_PATIENCE`]).
+    fn newest_weights(&mut self) -> Result<Option<Arrived>, ProcessError> {
+        let final_version = self
+            .links
+            .control
             .latest()?
             .filter(|c| c.body.phase == RunPhase::Finished)
             .map(|c| c.header.policy_version);
-        let latest = weights.latest()?;
-        let Some(w) = latest else {
-            let _ = weights.next(Duration::from_millis(200))?;
-            continue;
+        let Some(weights) = self.links.weights.latest()? else {
+            self.links.wait()?;
+            return Ok(None);
         };
-        let version = w.body.version;
+        let version = weights.body.version;
         let finished = match final_version {
             Some(last) if version < last => {
-                let since = *finished_seen.get_or_insert_with(std::time::Instant::now);
+                let since = *self.finished_seen.get_or_insert_with(Instant::now);
                 if since.elapsed() > FINAL_WEIGHTS_PATIENCE {
                     return Err(ProcessError::Other(format!(
                         "the run finished with weights version {last}, but the newest that arrived in {} s is {version}",
                         FINAL_WEIGHTS_PATIENCE.as_secs()
                     )));
                 }
-                let _ = weights.next(Duration::from_millis(200))?;
-                continue;
+                self.links.wait()?;
+                return Ok(None);
             }
             Some(_) => true,
             None => false,
         };
-        // The RL episodes the weights were trained on, as the learner says; a learner that does
-        // not say advanced its version once per imitation epoch and once per RL episode.
-        let trained = w
-            .body
-            .rl_episodes
-            .unwrap_or_else(|| version.saturating_sub(il_epochs));
-        if last_version.is_some_and(|last| version < last) {
-            let back = trained.saturating_sub(1);
-            tracing::warn!(
-                version,
-                last = last_version,
-                "the weights went back to an older version; following them"
-            );
-            if opts.every_episodes > 0 {
-                next_due = next_due.min(due_after(back, opts.every_episodes));
-            }
-            if val_every > 0 {
-                next_val_due = next_val_due.min(due_after(back, val_every));
-            }
-        }
-        last_version = Some(version);
-        let due = opts.every_episodes > 0 && trained >= next_due && evaluated != Some(version);
-        // Imitation bumps the version once per epoch: a validation point needs RL weights.
-        let val_due = val_every > 0
-            && spec.train.validation_episodes > 0
-            && version >= il_epochs
-            && validated != Some(version)
-            && (trained >= next_val_due || finished);
-        if !(val_due || due || finished) {
-            status.set_state(ProcessState::Idle);
-            let _ = weights.next(Duration::from_millis(200))?;
-            continue;
-        }
-        if unusable == Some(version) {
-            if finished {
-                return Err(ProcessError::Other(format!(
-                    "the run's final weights (version {version}) are unusable; see the warnings"
-                )));
-            }
-            let _ = weights.next(Duration::from_millis(200))?;
-            continue;
-        }
-        // Decoded once per version that is due, for the validation point and the report.
-        let net = match net_from_weights(&w.body, &net_cfg) {
-            Ok(net) => net,
+        Ok(Some(Arrived { weights, finished }))
+    }
+
+    /// The network of `weights`, or `None` when they do not fit this run's: skipped and counted
+    /// (a later version may be fine; an actor does the same).
+    fn decode(&mut self, weights: &proto::Weights) -> Option<ValueNet> {
+        let version = weights.version;
+        match net_from_weights(weights, &self.net_cfg) {
+            Ok(net) => Some(net),
             Err(e) => {
-                // Skip and count: a later version may be fine (an actor does the same).
-                bad_weights += 1;
-                unusable = Some(version);
-                status.error(format_args!("skipping weights version {version}: {e}"));
-                if bad_weights.is_power_of_two() {
-                    tracing::warn!(version, bad_weights, "skipping weights it cannot use: {e}");
+                let t = &mut self.tally;
+                t.bad_weights += 1;
+                t.unusable = Some(version);
+                self.status
+                    .error(format_args!("skipping weights version {version}: {e}"));
+                if t.bad_weights.is_power_of_two() {
+                    tracing::warn!(
+                        version,
+                        bad_weights = t.bad_weights,
+                        "skipping weights it cannot use: {e}"
+                    );
                 }
                 let mut m = proto::Metrics::default();
-                m.values.insert("bad_weights".into(), bad_weights as f64);
-                let _ = metrics.publish(version, &m);
-                continue;
+                m.values.insert("bad_weights".into(), t.bad_weights as f64);
+                let _ = self.links.metrics.publish(version, &m);
+                None
             }
-        };
-        status.set_state(ProcessState::Running);
-        if val_due {
-            let t0 = std::time::Instant::now();
-            let mut point = validate(spec, &net, opts.threads, trained, started.elapsed())?;
-            point.policy_version = Some(version);
-            if let Some(keep) = keep {
-                // The snapshot before its line.
-                keep(&net, version, trained).map_err(ProcessError::Other)?;
-            }
-            append_validation(opts, &point)?;
-            busy += t0.elapsed();
-            validations += 1;
-            let mut m = point.metrics(trained);
-            let wall = started.elapsed().as_secs_f64();
-            m.values.insert("validations".into(), validations as f64);
-            m.values.insert("busy_s".into(), busy.as_secs_f64());
-            m.values
-                .insert("wait_s".into(), (wall - busy.as_secs_f64()).max(0.0));
-            metrics.publish(version, &m)?;
-            validated = Some(version);
-            next_val_due = due_after(trained, val_every);
         }
-        if finished && !opts.final_report {
-            return Ok(EvaluatorExit::Finished(None));
+    }
+
+    /// A point of the learning curve: the snapshot kept, then its line in `validation.jsonl`,
+    /// then its live metrics.
+    fn validation_point(
+        &mut self,
+        net: &ValueNet,
+        version: u64,
+        trained: u64,
+    ) -> Result<(), ProcessError> {
+        let t = &mut self.tally;
+        let t0 = Instant::now();
+        let mut point = validate(
+            self.spec,
+            net,
+            self.opts.threads,
+            trained,
+            t.started.elapsed(),
+        )?;
+        point.policy_version = Some(version);
+        if let Some(keep) = self.keep {
+            // The snapshot before its line.
+            keep(net, version, trained).map_err(ProcessError::Other)?;
         }
-        if !(finished || due) {
-            let _ = weights.next(Duration::from_millis(200))?;
-            continue;
-        }
+        append_validation(self.opts, &point)?;
+        t.busy += t0.elapsed();
+        t.validations += 1;
+        let mut m = point.metrics(trained);
+        let wall = t.started.elapsed().as_secs_f64();
+        m.values.insert("validations".into(), t.validations as f64);
+        m.values.insert("busy_s".into(), t.busy.as_secs_f64());
+        m.values
+            .insert("wait_s".into(), (wall - t.busy.as_secs_f64()).max(0.0));
+        self.links.metrics.publish(version, &m)?;
+        self.schedule.validated(version, trained);
+        Ok(())
+    }
+
+    /// Scores the snapshot on the evaluation settings, publishes the report and writes it
+    /// (`eval-<version>.{json,md}`).
+    fn score_and_report(
+        &mut self,
+        net: &ValueNet,
+        version: u64,
+        trained: u64,
+        finished: bool,
+    ) -> Result<EvalReport, ProcessError> {
         tracing::info!(
             version,
             trained,
             final_snapshot = finished,
             "evaluating a snapshot"
         );
+        let opts = self.opts;
         let results = evaluate(
-            Subject::of_run(spec, &net),
-            &spec.sim,
+            Subject::of_run(self.spec, net),
+            &self.spec.sim,
             &opts.settings,
             opts.seed_start,
             opts.episodes_per_setting,
             opts.threads,
         )?;
         let r = report(&results, trained, finished);
-        reports.publish(version, &r)?;
+        self.links.reports.publish(version, &r)?;
         write(
             opts,
             &format!("eval-{version:06}"),
             &r,
-            spec.method.name(),
+            self.spec.method.name(),
             version,
         )?;
-        evaluated = Some(version);
-        if opts.every_episodes > 0 {
-            next_due = due_after(trained, opts.every_episodes);
-        }
-        if finished {
-            write(opts, "report", &r, spec.method.name(), version)?;
-            return Ok(EvaluatorExit::Finished(Some(r)));
-        }
+        self.schedule.reported(version, trained);
+        Ok(r)
     }
 }
 
