@@ -29,7 +29,7 @@ import tomllib
 from dataclasses import dataclass, field
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from rust_tokens import LexError, Token, tokens  # noqa: E402
+from rust_tokens import LexError, tokens  # noqa: E402
 
 ROOT_NODE = "(crate root)"
 
