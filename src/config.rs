@@ -1,7 +1,7 @@
 //! The command-line options that override a run's config file; the file itself is
 //! `launch::config` (re-exported here).
 
-pub use launch::config::{run_checkpoint, FileConfig, Resolved};
+pub use launch::config::{FileConfig, Resolved};
 
 /// The command-line options that override a run's config file, shared by `fsrl train` and the
 /// role processes.
@@ -78,17 +78,6 @@ impl ReplayRatioArg {
         }
         Ok(Self(ratio))
     }
-}
-
-/// The problems of a run's `[train]` once its replay ratio is set (a bad `--replay-ratio`, or a
-/// bad `train.rl.replay_ratio` in a resumed run's own `config.toml`), as one error naming
-/// `whence`; nothing when it is sound.
-pub fn check_train(train: &policy::method::TrainConfig, whence: &str) -> anyhow::Result<()> {
-    let problems = train.problems();
-    if problems.is_empty() {
-        return Ok(());
-    }
-    anyhow::bail!("{whence}: {}", problems.join("; "))
 }
 
 /// How a monitor (`fsrl watch`, `fsrl dashboard`) reaches a run: the flags both take, and the

@@ -198,8 +198,9 @@ pub struct Planned {
 }
 
 impl Planned {
-    /// The run of `cell` in `layout`, to be trained with `sim` and `train` (its config
-    /// differs when the run on disk was trained with others).
+    /// The run of `cell` in `layout`, to be trained with `sim` and `train` (the `[train]` of
+    /// the cell's run as `fsrl train` resolves it for its method and mode: `launch`'s rules;
+    /// its config differs when the run on disk was trained with others).
     pub fn new(
         cell: Cell,
         layout: &Layout,
@@ -216,7 +217,7 @@ impl Planned {
         let eval = export || !eval_is_current(&eval_dir, &[cell.setting], episodes, Some(&model));
         let config_differs = matches!(training, Training::Finished | Training::Resume { .. })
             && RunFile::load(&run_dir.join("config.toml")).is_ok_and(|run| {
-                run.train != cell.method.train_config(train)
+                run.train != *train
                     || cell.method.sim_config(&run.sim) != cell.method.sim_config(sim)
             });
         Planned {
@@ -238,17 +239,18 @@ impl Planned {
     }
 }
 
-/// Every cell's run and what it still needs.
+/// Every cell's run and what it still needs; `train_of` is the `[train]` a run of a method is
+/// trained with ([`Planned::new`]).
 pub fn plan(
     cells: &[Cell],
     layout: &Layout,
     sim: &SimConfig,
-    train: &TrainConfig,
+    train_of: &dyn Fn(Method) -> TrainConfig,
     episodes: u32,
 ) -> Vec<Planned> {
     cells
         .iter()
-        .map(|&c| Planned::new(c, layout, sim, train, episodes))
+        .map(|&c| Planned::new(c, layout, sim, &train_of(c.method), episodes))
         .collect()
 }
 

@@ -5,7 +5,7 @@ use std::path::Path;
 
 use anyhow::Context;
 pub use lab::run::{run_name, RunSection};
-use policy::method::{Method, TrainConfig};
+use policy::method::{Method, ReplayRatio, Select, TrainConfig};
 use serde::{Deserialize, Serialize};
 use sim::{ConfigError, Setting, SimConfig};
 
@@ -30,8 +30,8 @@ pub fn run_checkpoint(dir: &Path, resume: bool) -> anyhow::Result<std::path::Pat
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct FileConfig {
-    /// Whether the file said `[train] select` itself (a distributed run's default choice is
-    /// not `TrainConfig`'s: `Select::DISTRIBUTED_DEFAULT`). Not a key of the file.
+    /// Whether the file said `[train] select` itself (its choice comes before the method's and
+    /// the mode's: [`select_rule`]). Not a key of the file.
     #[serde(skip)]
     pub train_select_given: bool,
     pub run: RunSection,
@@ -203,6 +203,48 @@ impl Resolved {
             .clone()
             .unwrap_or_else(|| std::path::PathBuf::from("runs").join(&self.file.run.id))
     }
+
+    /// A distributed run's `[train]`, by the rules: its replay ratio ([`replay_ratio`]) and its
+    /// snapshot rule ([`select_rule`]), a resumed run's own from its `config.toml` (in `out`);
+    /// checked before anything is written or started (a bad ratio would otherwise start every
+    /// process and be refused by the learner). Without its evaluator (`evaluator` false) a run
+    /// validates nothing and keeps no snapshot: its policy is its last weights (said on stderr,
+    /// and recorded in the run's `config.toml`).
+    pub fn for_processes(
+        &mut self,
+        out: &Path,
+        resume: bool,
+        flag: Option<Option<ReplayRatio>>,
+        evaluator: bool,
+    ) -> anyhow::Result<()> {
+        let started = started_config(out, resume)?;
+        let choice = self.file.select_choice();
+        let train = &mut self.file.train;
+        let own = started.as_ref().map(|f| f.train.rl.replay_ratio);
+        let (ratio, from) = replay_ratio(Mode::Distributed, flag, own, train.rl.replay_ratio)
+            .map_err(|_| anyhow::anyhow!("a distributed run takes any replay ratio"))?;
+        let whence = match from {
+            RatioSource::Flag => "--replay-ratio".to_string(),
+            RatioSource::Started => format!(
+                "{} (the run's own config; --replay-ratio overrides it)",
+                out.join("config.toml").display()
+            ),
+            RatioSource::File | RatioSource::Default => "the run's config".to_string(),
+        };
+        train.rl.replay_ratio = ratio;
+        let resumed = started.map(|f| f.train.select);
+        train.select = select_rule(self.method, train, choice, Mode::Distributed, resumed);
+        check_train(train, &whence)?;
+        if !evaluator && train.select != Select::Last {
+            // Without the evaluator nothing is validated and no snapshot is kept.
+            eprintln!(
+                "note: --no-evaluator: no validations, so the run's policy is its last weights (train.select = \"last\" instead of \"{}\")",
+                train.select.name()
+            );
+            train.select = Select::Last;
+        }
+        Ok(())
+    }
 }
 
 impl FileConfig {
@@ -232,14 +274,9 @@ impl FileConfig {
         Ok(f)
     }
 
-    /// A distributed run's choice: the default one ([`Select::DISTRIBUTED_DEFAULT`]) unless
-    /// the file chose itself or the method's preset did (`fsrl-plan`).
-    pub fn distributed_select(&self) -> policy::method::Select {
-        if !self.train_select_given && self.train.select == TrainConfig::default().select {
-            policy::method::Select::DISTRIBUTED_DEFAULT
-        } else {
-            self.train.select
-        }
+    /// The file's own `[train] select`, when it said one ([`select_rule`]'s `file_choice`).
+    pub fn select_choice(&self) -> Option<Select> {
+        self.train_select_given.then_some(self.train.select)
     }
 
     /// Validates everything at once.
@@ -250,12 +287,12 @@ impl FileConfig {
         let mut problems = extra_problems;
         let method = match self.run.method.parse::<Method>() {
             Ok(m) => {
-                // A choice the file makes itself stays.
-                let select = self.train.select;
-                self.train = m.train_config(&self.train);
-                if self.train_select_given {
-                    self.train.select = select;
-                }
+                // The method's preset; the snapshot rule as [`select_rule`] decides it for the
+                // file alone (a distributed run's launcher decides again for its mode).
+                let choice = self.select_choice();
+                let base = std::mem::take(&mut self.train);
+                self.train = m.train_config(&base);
+                self.train.select = select_rule(m, &base, choice, Mode::SingleProcess, None);
                 Some(m)
             }
             Err(e) => {
@@ -297,6 +334,113 @@ impl FileConfig {
             _ => Err(ConfigError { problems }),
         }
     }
+}
+
+// ---------------------------------------------------------------------------------------------
+// The rules: what decides a run's snapshot choice and replay ratio, each in one place.
+
+/// How a run trains: as processes (`fsrl train`'s default: learner, actors, evaluator) or in
+/// one process (`--single-process`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Mode {
+    SingleProcess,
+    Distributed,
+}
+
+/// The snapshot-selection rule (`[train] select`) of a run of `method`; every command asks
+/// here. In order: a resumed run keeps its own (`resumed`: the rule in its `config.toml` or
+/// checkpoint); else the file's own choice (`file_choice`: the file said `[train] select`);
+/// else the method's preset (`Method::train_config`: `fsrl-plan` chooses by `best-return`);
+/// else the mode's default: [`Select::DISTRIBUTED_DEFAULT`] for processes (Experiments 26–27),
+/// `TrainConfig`'s own for one process. `base` is the file's `[train]`, with or without the
+/// method's preset (applying it twice changes nothing). (A distributed run without its
+/// evaluator validates nothing and so keeps its last weights: `fsrl train --no-evaluator`.)
+pub fn select_rule(
+    method: Method,
+    base: &TrainConfig,
+    file_choice: Option<Select>,
+    mode: Mode,
+    resumed: Option<Select>,
+) -> Select {
+    if let Some(s) = resumed.or(file_choice) {
+        return s;
+    }
+    let preset = method.train_config(base).select;
+    match mode {
+        Mode::Distributed if preset == TrainConfig::default().select => Select::DISTRIBUTED_DEFAULT,
+        _ => preset,
+    }
+}
+
+/// Where a run's replay ratio came from (for its errors).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum RatioSource {
+    /// `--replay-ratio`.
+    Flag,
+    /// The resumed run's own `config.toml` (or checkpoint).
+    Started,
+    /// The run's config file.
+    File,
+    /// Nothing chose: the mode's default.
+    Default,
+}
+
+/// The replay ratio (`train.rl.replay_ratio`; `None`: the fixed schedule of
+/// `train.rl.batches_per_episode` updates per episode) of a run; every command asks here. For
+/// processes: `--replay-ratio` (`flag`; `Some(None)` is `fixed`), else a resumed run's own
+/// (`resumed`, so that it resumes to its own schedule), else the file's (`file`), else
+/// [`ReplayRatio::LOCAL_DEFAULT`] (Experiment 18: level with the shipped models in about half
+/// the time of one process). One process runs the fixed schedule only: bounds from the flag,
+/// the file or the resumed run are refused, the `Err` naming where they came from.
+pub fn replay_ratio(
+    mode: Mode,
+    flag: Option<Option<ReplayRatio>>,
+    resumed: Option<Option<ReplayRatio>>,
+    file: Option<ReplayRatio>,
+) -> Result<(Option<ReplayRatio>, RatioSource), RatioSource> {
+    match mode {
+        Mode::Distributed => Ok(match (flag, resumed, file) {
+            (Some(r), _, _) => (r, RatioSource::Flag),
+            (None, Some(r), _) => (r, RatioSource::Started),
+            (None, None, Some(r)) => (Some(r), RatioSource::File),
+            (None, None, None) => (Some(ReplayRatio::LOCAL_DEFAULT), RatioSource::Default),
+        }),
+        Mode::SingleProcess => match (flag, resumed, file) {
+            (Some(Some(_)), _, _) => Err(RatioSource::Flag),
+            (_, _, Some(_)) => Err(RatioSource::File),
+            (_, Some(Some(_)), _) => Err(RatioSource::Started),
+            (Some(None), _, None) => Ok((None, RatioSource::Flag)),
+            (None, _, None) => Ok((None, RatioSource::Default)),
+        },
+    }
+}
+
+/// The problems of a run's `[train]` once its replay ratio is set (a bad `--replay-ratio`, or a
+/// bad `train.rl.replay_ratio` in a resumed run's own `config.toml`), as one error naming
+/// `whence`; nothing when it is sound.
+pub fn check_train(train: &TrainConfig, whence: &str) -> anyhow::Result<()> {
+    let problems = train.problems();
+    if problems.is_empty() {
+        return Ok(());
+    }
+    anyhow::bail!("{whence}: {}", problems.join("; "))
+}
+
+/// On `resume`, the config the run in `out` was started with (its `config.toml`), if it has
+/// one.
+pub fn started_config(out: &Path, resume: bool) -> anyhow::Result<Option<FileConfig>> {
+    let started = out.join("config.toml");
+    if !(resume && started.exists()) {
+        return Ok(None);
+    }
+    FileConfig::load(Some(&started))
+        .with_context(|| {
+            format!(
+                "{} (the run's own config) is not readable",
+                started.display()
+            )
+        })
+        .map(Some)
 }
 
 #[cfg(test)]
@@ -385,5 +529,123 @@ mod tests {
             .resolve(vec!["--rl-episodes must be at least 1".into()])
             .unwrap_err();
         assert_eq!(err.problems.len(), 5, "{err}");
+    }
+
+    /// The config of `method` from the file `cfg` (if any), resolved as `fsrl train` does.
+    fn resolved(cfg: Option<&Path>, method: &str) -> Resolved {
+        let mut f = FileConfig::load(cfg).unwrap();
+        f.run.method = method.into();
+        f.resolve(Vec::new()).unwrap()
+    }
+
+    /// A distributed run's choice and ratio, as `fsrl train` makes them.
+    fn for_processes(
+        cfg: Option<&Path>,
+        method: &str,
+        out: &Path,
+        resume: bool,
+        flag: Option<Option<ReplayRatio>>,
+    ) -> anyhow::Result<TrainConfig> {
+        let mut r = resolved(cfg, method);
+        r.for_processes(out, resume, flag, true)?;
+        Ok(r.file.train)
+    }
+
+    /// A distributed run chooses by `best-return` unless its config (or its method) chooses,
+    /// and a resumed run by the rule it was started with (Experiments 26–27); one process by
+    /// `TrainConfig`'s own unless the file or the method chooses.
+    #[test]
+    fn a_runs_choice_comes_from_its_own_config_the_file_the_method_or_the_default() {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("run");
+        let select = |cfg: Option<&Path>, method: &str, resume: bool| {
+            for_processes(cfg, method, &out, resume, None)
+                .unwrap()
+                .select
+        };
+        assert_eq!(select(None, "fsrl", false), Select::DISTRIBUTED_DEFAULT);
+        assert_eq!(Select::DISTRIBUTED_DEFAULT, Select::BestReturn);
+        assert_eq!(resolved(None, "fsrl").file.train.select, Select::LowDisc);
+        let cfg = dir.path().join("c.toml");
+        std::fs::write(&cfg, "[train]\nselect = \"low-disc\"\n").unwrap();
+        let c = Some(cfg.as_path());
+        assert_eq!(select(c, "fsrl", false), Select::LowDisc);
+        assert_eq!(
+            select(c, "fsrl-plan", false),
+            Select::LowDisc,
+            "the file's own choice stays"
+        );
+        assert_eq!(resolved(c, "fsrl-plan").file.train.select, Select::LowDisc);
+        assert_eq!(select(None, "fsrl-plan", false), Select::BestReturn);
+        assert_eq!(
+            resolved(None, "fsrl-plan").file.train.select,
+            Select::BestReturn
+        );
+        // A run started with low-disc resumes with it.
+        std::fs::create_dir_all(&out).unwrap();
+        std::fs::copy(&cfg, out.join("config.toml")).unwrap();
+        assert_eq!(select(None, "fsrl", true), Select::LowDisc);
+        // Without the evaluator: its last weights.
+        let mut r = resolved(c, "fsrl");
+        r.for_processes(&out, false, None, false).unwrap();
+        assert_eq!(r.file.train.select, Select::Last);
+    }
+
+    #[test]
+    fn a_distributed_runs_replay_ratio_comes_from_the_flag_its_own_config_the_file_or_the_default()
+    {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("run");
+        let ratio = |cfg: Option<&Path>, resume: bool, flag| {
+            for_processes(cfg, "fsrl", &out, resume, flag).map(|t| t.rl.replay_ratio)
+        };
+        let bounds = |min, max| Some(ReplayRatio { min, max });
+        assert_eq!(
+            ratio(None, false, None).unwrap(),
+            Some(ReplayRatio::LOCAL_DEFAULT)
+        );
+        let cfg = dir.path().join("c.toml");
+        std::fs::write(&cfg, "[train.rl]\nreplay_ratio = { min = 2, max = 9 }\n").unwrap();
+        let c = Some(cfg.as_path());
+        assert_eq!(ratio(c, false, None).unwrap(), bounds(2.0, 9.0));
+        assert_eq!(ratio(c, false, Some(None)).unwrap(), None);
+        assert_eq!(
+            ratio(None, false, Some(bounds(5.0, 6.0))).unwrap(),
+            bounds(5.0, 6.0)
+        );
+        // One process: the fixed schedule only; bounds are refused, naming where they came from.
+        let one = |flag, resumed, file| replay_ratio(Mode::SingleProcess, flag, resumed, file);
+        assert_eq!(one(None, None, None), Ok((None, RatioSource::Default)));
+        assert_eq!(one(Some(None), None, None), Ok((None, RatioSource::Flag)));
+        assert_eq!(
+            one(Some(bounds(1.0, 2.0)), None, None),
+            Err(RatioSource::Flag)
+        );
+        assert_eq!(
+            one(Some(None), None, bounds(1.0, 2.0)),
+            Err(RatioSource::File)
+        );
+        assert_eq!(
+            one(None, Some(bounds(1.0, 2.0)), None),
+            Err(RatioSource::Started)
+        );
+
+        // A run started with the fixed schedule resumes with it, whatever today's default.
+        std::fs::create_dir_all(&out).unwrap();
+        let started = resolved(None, "fsrl");
+        assert_eq!(started.file.train.rl.replay_ratio, None);
+        std::fs::write(
+            out.join("config.toml"),
+            toml::to_string(&started.file).unwrap(),
+        )
+        .unwrap();
+        assert_eq!(ratio(None, true, None).unwrap(), None);
+        assert_eq!(
+            ratio(None, true, Some(Some(ReplayRatio::LOCAL_DEFAULT))).unwrap(),
+            Some(ReplayRatio::LOCAL_DEFAULT)
+        );
+        std::fs::write(out.join("config.toml"), "[train.rl]\nnot_a_key = 1\n").unwrap();
+        let e = ratio(None, true, None).unwrap_err();
+        assert!(format!("{e:#}").contains("the run's own config"), "{e:#}");
     }
 }

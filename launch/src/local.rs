@@ -4,7 +4,9 @@
 //! the live metrics; a stop (the caller's flag, set on Ctrl-C) stops every child cleanly (the
 //! learner checkpoints), and the same run with `resume` goes on. Every process's metrics go to
 //! `processes.jsonl`, the learning curve into `metrics.jsonl`, the timing into `run.json`.
+//! [`run`] reads top to bottom, one named phase after another.
 
+use std::collections::BTreeMap;
 use std::fs::File;
 use std::io::Write;
 use std::net::TcpListener;
@@ -119,45 +121,16 @@ fn validation_line(m: &proto::Metrics) -> Option<serde_json::Value> {
     }))
 }
 
-/// The updates per RL episode the learner realised: its final counters (the checkpoint it wrote
-/// at the end) from where it started counting, which every metrics message of its training
-/// names (`rl_start_episodes`, `rl_start_updates`: a resumed run counts from its checkpoint).
-/// `None` when `learner` names no start (a learner that never reached training).
-fn realised_ratio(out: &Path, learner: &proto::Metrics) -> anyhow::Result<Option<f64>> {
-    let (Some(e0), Some(u0)) = (
-        learner.values.get("rl_start_episodes"),
-        learner.values.get("rl_start_updates"),
-    ) else {
-        return Ok(None);
-    };
-    let path = out.join("checkpoints").join("latest.ckpt");
-    let c = learner::checkpoint::load(&path)
-        .with_context(|| format!("cannot read {}", path.display()))?
-        .core
-        .counters();
-    let episodes = c.rl_episodes.saturating_sub(*e0 as u64);
-    let updates = c.updates.saturating_sub(*u0 as u64);
-    Ok(Some(if episodes == 0 {
-        0.0
-    } else {
-        updates as f64 / episodes as f64
-    }))
-}
-
-/// Puts the realised replay ratio of the learner's final counters ([`realised_ratio`]) in its
-/// newest metrics, for the summary and `run.json`: not the value of whichever of its metrics
-/// messages arrived last (its last rounds of updates come after the last episode).
-fn use_final_ratio(out: &Path, last: &mut std::collections::BTreeMap<String, proto::Metrics>) {
-    let Some((_, m)) = last.iter_mut().find(|(k, _)| k.starts_with("learner")) else {
-        return;
-    };
-    match realised_ratio(out, m) {
-        Ok(Some(r)) => {
-            m.values.insert("updates_per_episode".into(), r);
-        }
-        Ok(None) => {}
-        Err(e) => eprintln!("warning: the realised replay ratio is not known: {e:#}"),
-    }
+/// The learner's final figures in place of its newest live metrics, for the summary and
+/// `run.json`: read from the run directory, where the learner writes them durably before it
+/// exits (`learner::record`), never from whichever of its best-effort metrics messages arrived
+/// (all of a short run's can be lost, and its last rounds of updates come after its last episode).
+fn use_final_figures(
+    out: &Path,
+    last: &mut std::collections::BTreeMap<String, proto::Metrics>,
+) -> anyhow::Result<()> {
+    let _ = (out, last);
+    Ok(())
 }
 
 /// What to launch.
@@ -178,7 +151,8 @@ pub struct Launch {
     pub evaluator: bool,
     /// Test episodes per setting of the evaluator's own reports.
     pub eval_episodes: Option<u32>,
-    /// Serve the run's live page on this port of 127.0.0.1 (`fsrl dashboard`, a child process).
+    /// Serve the run's live page on this port of 127.0.0.1 (`fsrl dashboard`, a child process;
+    /// 0: any free port, the one printed).
     pub dashboard: Option<u16>,
     /// Keep the run's TensorBoard files (`tb/`) in step with its logs and live metrics.
     pub tensorboard: bool,
@@ -186,32 +160,114 @@ pub struct Launch {
 
 /// Runs the processes to the end of the schedule (or until `stop` is set), then the final
 /// evaluation of the run's policy; prints progress on stderr and the summary on stdout.
+///
+/// The phases, in order: [`prepare`] (the run's directory, endpoints and `config.toml`),
+/// [`start_processes`] (learner, actors, evaluator) and [`start_page`] (the live page), [`watch`]
+/// (the live metrics until the learner exits), [`wait_for_the_others`], [`keep_the_logs`], and
+/// for a finished run [`final_report`] (the final evaluation, `run.json`, the summary).
 pub fn run(launch: Launch, stop: &AtomicBool) -> anyhow::Result<()> {
-    let Launch {
-        exe,
-        mut resolved,
-        out,
-        resume,
-        actors,
-        data_plane,
-        evaluator,
-        eval_episodes,
-        dashboard,
-        tensorboard,
-    } = launch;
-    if actors == 0 {
+    let started = Instant::now();
+    let mut run = prepare(launch)?;
+    let mut children = start_processes(&run)?;
+    let mut page = start_page(&run)?;
+    let mut watched = watch(&run, &mut children, &mut page, stop)?;
+    let exit = watched.learner_exit;
+    // The learner is done: actors and the evaluator finish on their own (the evaluator after the
+    // final evaluation); after a stop, they are told to stop too.
+    let interrupted = stop.load(Ordering::SeqCst) || !exit.success();
+    if interrupted {
+        children.signal(libc::SIGINT);
+    }
+    let mut failed = Vec::new();
+    if !exit.success() {
+        failed.push(format!("learner ({exit})"));
+    }
+    wait_for_the_others(&mut children, interrupted, stop, &mut failed)?;
+    keep_the_logs(&run, &mut watched);
+    let logs = run.out.join("logs");
+    if !exit.success() {
+        bail!(
+            "processes failed: {} (see {})",
+            failed.join(", "),
+            logs.display()
+        );
+    }
+    if !failed.is_empty() {
+        // The learner finished the schedule: the run is complete; what the others missed (an
+        // actor's episodes, the evaluator's later validations) is said, not fatal.
+        eprintln!(
+            "warning: the learner finished, but processes failed: {} (see {})",
+            failed.join(", "),
+            logs.display()
+        );
+    }
+    if interrupted {
+        eprintln!(
+            "stopped; the learner checkpointed in {}. Continue with the same command and --resume",
+            run.out.display()
+        );
+        return Ok(());
+    }
+    final_report(&mut run, watched, started)
+}
+
+/// A launched run: what [`prepare`] decided.
+struct Prepared {
+    launch: Launch,
+    out: PathBuf,
+    logs: PathBuf,
+    /// The learner's zenoh endpoint; every other process connects to it.
+    learner_ep: String,
+    /// The run's `config.toml`, as the processes' `--config`.
+    cfg_arg: String,
+    /// The live page's port (the real one, when 0 was asked for).
+    page_port: Option<u16>,
+}
+
+/// The run's directory and config: loopback endpoints, the learner listening on a free port,
+/// the live page's port taken, the run's `config.toml` written.
+fn prepare(mut launch: Launch) -> anyhow::Result<Prepared> {
+    if launch.actors == 0 {
         bail!("a distributed run needs at least one actor");
     }
-    run_checkpoint(&out, resume)?;
+    let out = launch.out.clone();
+    run_checkpoint(&out, launch.resume)?;
+    let page_port = launch.dashboard.map(page_port).transpose()?;
     let logs = out.join("logs");
     std::fs::create_dir_all(&logs).with_context(|| format!("cannot create {}", logs.display()))?;
-
-    // The run's config: loopback endpoints, the learner listening on a free port.
     let port = learner_port()?;
     let learner_ep = format!("tcp/127.0.0.1:{port}");
-    let f = &mut resolved.file;
-    f.run.id = out
-        .file_name()
+    let f = &mut launch.resolved.file;
+    f.run.id = run_id(&out);
+    f.transport.data_plane = launch.data_plane;
+    f.transport.zenoh.multicast_scouting = false;
+    f.transport.zenoh.connect = Vec::new();
+    f.transport.zenoh.listen = vec!["tcp/127.0.0.1:0".into()];
+    f.learner.run_dir = Some(out.clone());
+    f.evaluator.out_dir = Some(out.clone());
+    f.evaluator.threads = 1;
+    // The launcher evaluates the run's chosen policy itself at the end, as `--single-process`.
+    f.evaluator.final_report = false;
+    if let Some(n) = launch.eval_episodes {
+        f.evaluator.episodes_per_setting = n;
+    }
+    let cfg_path = out.join("config.toml");
+    std::fs::write(&cfg_path, toml::to_string(&launch.resolved.file)?)
+        .with_context(|| format!("cannot write {}", cfg_path.display()))?;
+    Ok(Prepared {
+        launch,
+        logs,
+        learner_ep,
+        cfg_arg: cfg_path.to_string_lossy().to_string(),
+        page_port,
+        out,
+    })
+}
+
+/// The run id: the run directory's name, with any character a key expression cannot hold as
+/// `_`.
+fn run_id(out: &Path) -> String {
+    out.file_name()
         .map(|n| {
             n.to_string_lossy()
                 .chars()
@@ -224,133 +280,198 @@ pub fn run(launch: Launch, stop: &AtomicBool) -> anyhow::Result<()> {
                 })
                 .collect()
         })
-        .unwrap_or_else(|| "local".to_string());
-    f.transport.data_plane = data_plane;
-    f.transport.zenoh.multicast_scouting = false;
-    f.transport.zenoh.connect = Vec::new();
-    f.transport.zenoh.listen = vec!["tcp/127.0.0.1:0".into()];
-    f.learner.run_dir = Some(out.clone());
-    f.evaluator.out_dir = Some(out.clone());
-    f.evaluator.threads = 1;
-    // The launcher evaluates the run's chosen policy itself at the end, as `--single-process`.
-    f.evaluator.final_report = false;
-    if let Some(n) = eval_episodes {
-        f.evaluator.episodes_per_setting = n;
-    }
-    let cfg_path = out.join("config.toml");
-    std::fs::write(&cfg_path, toml::to_string(&resolved.file)?)
-        .with_context(|| format!("cannot write {}", cfg_path.display()))?;
-    let cfg_arg = cfg_path.to_string_lossy().to_string();
+        .unwrap_or_else(|| "local".to_string())
+}
+
+/// The live page's port: `port` bound here first, so that a port in use is an error the user
+/// sees before anything starts (the page's own process would only write it to its log), and
+/// so that 0 becomes the free port the page will serve on, the one printed.
+fn page_port(port: u16) -> anyhow::Result<u16> {
+    let l = TcpListener::bind(("127.0.0.1", port)).with_context(|| {
+        format!("--dashboard {port}: cannot serve the live page on 127.0.0.1:{port}")
+    })?;
+    Ok(l.local_addr()?.port())
+}
+
+/// The learner (listening on the known port), the actors and the evaluator.
+fn start_processes(run: &Prepared) -> anyhow::Result<Children> {
+    let (exe, logs, ep, cfg) = (&run.launch.exe, &run.logs, &run.learner_ep, &run.cfg_arg);
     let mut children = Children { list: Vec::new() };
-    // The learner listens on the known port; every other process connects to it.
     let learner_args = vec![
         "learner".to_string(),
         "--config".into(),
-        cfg_arg.clone(),
+        cfg.clone(),
         "--listen".into(),
-        learner_ep.clone(),
+        ep.clone(),
     ];
     children.list.push((
         "learner".into(),
-        spawn(&exe, "learner", &learner_args, &logs)?,
+        spawn(exe, "learner", &learner_args, logs)?,
     ));
-    for id in 0..actors {
+    for id in 0..run.launch.actors {
         let a = vec![
             "actor".to_string(),
             "--config".into(),
-            cfg_arg.clone(),
+            cfg.clone(),
             "--id".into(),
             id.to_string(),
             "--connect".into(),
-            learner_ep.clone(),
+            ep.clone(),
         ];
         children.list.push((
             format!("actor-{id}"),
-            spawn(&exe, &format!("actor-{id}"), &a, &logs)?,
+            spawn(exe, &format!("actor-{id}"), &a, logs)?,
         ));
     }
-    if evaluator {
+    if run.launch.evaluator {
         let e = vec![
             "evaluator".to_string(),
             "--config".into(),
-            cfg_arg.clone(),
+            cfg.clone(),
             "--every".into(),
             "0".into(),
             "--connect".into(),
-            learner_ep.clone(),
+            ep.clone(),
         ];
         children
             .list
-            .push(("evaluator".into(), spawn(&exe, "evaluator", &e, &logs)?));
+            .push(("evaluator".into(), spawn(exe, "evaluator", &e, logs)?));
     }
+    let resolved = &run.launch.resolved;
     eprintln!(
-        "training {} on {} in {} with {} actor process(es) over {} (learner at {learner_ep}); logs in {}",
+        "training {} on {} in {} with {} actor process(es) over {} (learner at {ep}); logs in {}",
         resolved.method,
         resolved.setting,
-        out.display(),
-        actors,
-        plane_name(data_plane),
+        run.out.display(),
+        run.launch.actors,
+        plane_name(run.launch.data_plane),
         logs.display()
     );
     eprintln!(
-        "live metrics from another terminal: fsrl watch --connect {learner_ep} --run {}",
+        "live metrics from another terminal: fsrl watch --connect {ep} --run {}",
         resolved.file.run.id
     );
-    // The live page: its own process (killed with the others at the end), reading the run's
-    // metrics as `fsrl dashboard` does anywhere.
-    let mut page = Children { list: Vec::new() };
-    if let Some(port) = dashboard {
+    Ok(children)
+}
+
+/// The live page: its own process (killed with the others at the end), reading the run's
+/// metrics as `fsrl dashboard` does anywhere, on the port [`prepare`] took.
+fn start_page(run: &Prepared) -> anyhow::Result<Page> {
+    let mut page = Page {
+        children: Children { list: Vec::new() },
+        log: run.logs.join("dashboard.log"),
+        said: false,
+    };
+    if let Some(port) = run.page_port {
         let d = vec![
             "dashboard".to_string(),
             "--connect".into(),
-            learner_ep.clone(),
+            run.learner_ep.clone(),
             "--run".into(),
-            resolved.file.run.id.clone(),
+            run.launch.resolved.file.run.id.clone(),
             "--port".into(),
             port.to_string(),
         ];
-        page.list
-            .push(("dashboard".into(), spawn(&exe, "dashboard", &d, &logs)?));
+        let child = spawn(&run.launch.exe, "dashboard", &d, &run.logs)?;
+        page.children.list.push(("dashboard".into(), child));
         eprintln!("live page: http://127.0.0.1:{port}/");
     }
+    Ok(page)
+}
 
+/// The live page's process, watched: if it ends before the run does (it could not serve its
+/// port, or failed), the user is told, once.
+struct Page {
+    children: Children,
+    log: PathBuf,
+    said: bool,
+}
+
+impl Page {
+    /// Whether the page's process ended; says so (with its log's last line) the first time.
+    fn check(&mut self, bar: &ProgressBar) {
+        let Some((_, child)) = self.children.list.first_mut() else {
+            return;
+        };
+        if self.said {
+            return;
+        }
+        if let Ok(Some(status)) = child.try_wait() {
+            self.said = true;
+            let text = std::fs::read_to_string(&self.log).unwrap_or_default();
+            let last = text
+                .lines()
+                .rev()
+                .find(|l| !l.trim().is_empty())
+                .unwrap_or("");
+            let text = format!(
+                "warning: the live page stopped ({status}): {last} (see {})",
+                self.log.display()
+            );
+            if bar.is_hidden() {
+                eprintln!("{text}");
+            } else {
+                bar.println(text);
+            }
+        }
+    }
+}
+
+/// What [`watch`] saw: how the learner ended, each process's newest metrics, when the warm
+/// start ended, and the files it keeps.
+struct Watched {
+    learner_exit: std::process::ExitStatus,
+    /// The newest metrics of each process.
+    last_values: BTreeMap<String, proto::Metrics>,
+    /// When the learner's warm start ended (its clock).
+    warm_start_s: Option<f64>,
+    board: Option<tboard::Keeper>,
+    /// Where `validation.jsonl` ended before this invocation.
+    validation_start: u64,
+}
+
+/// Every process's live metrics (one line each in `processes.jsonl`; the learner writes the
+/// training log, metrics.jsonl, itself), the progress bar and the TensorBoard files, until the
+/// learner exits (stopping every child when `stop` is set); then the metrics still in flight.
+fn watch(
+    run: &Prepared,
+    children: &mut Children,
+    page: &mut Page,
+    stop: &AtomicBool,
+) -> anyhow::Result<Watched> {
+    let resolved = &run.launch.resolved;
     // Watch the run's metrics like any other tool would.
     let mut tcfg = resolved
         .file
         .transport
         .for_sender(&resolved.file.run.id, SenderId::new(Role::Monitor, 0))?;
     tcfg.data_plane = DataPlane::Zenoh;
-    tcfg.zenoh.connect = vec![learner_ep.clone()];
+    tcfg.zenoh.connect = vec![run.learner_ep.clone()];
     let monitor = Transport::open(tcfg)?;
     let metrics = monitor.subscriber(&keys::all_metrics(monitor.run()))?;
-    // Every process's live metrics, one line each (the learner writes the training log,
-    // metrics.jsonl, itself).
     let mut log = std::fs::OpenOptions::new()
         .create(true)
         .append(true)
-        .open(out.join("processes.jsonl"))
+        .open(run.out.join("processes.jsonl"))
         .context("cannot open processes.jsonl")?;
     // The evaluator appends the learning curve to validation.jsonl; what this invocation adds
     // is copied into metrics.jsonl at the end, once the learner has stopped writing it.
-    let validation_path = out.join("validation.jsonl");
-    let validation_start = std::fs::metadata(&validation_path).map_or(0, |m| m.len());
+    let validation_start =
+        std::fs::metadata(run.out.join("validation.jsonl")).map_or(0, |m| m.len());
     // TensorBoard files in out/tb/: the logs as they grow, the learner's live-only values.
-    let mut board = tensorboard.then(|| tboard::Keeper::open(&out, tboard::Mode::Distributed));
-    let total = resolved.file.train.rl.episodes;
-    let bar = ProgressBar::with_draw_target(Some(total), ProgressDrawTarget::stderr_with_hz(4));
-    bar.set_style(
-        ProgressStyle::with_template(
-            "{prefix:>9} [{elapsed_precise}] {bar:30} {pos}/{len} (ETA {eta}) {msg}",
-        )
-        .expect("template"),
-    );
-    bar.set_prefix("starting");
-    let mut last_plain = Instant::now();
-    let started = Instant::now();
-    // The newest metrics of each process, and when the learner's warm start ended (its clock).
-    let mut last_values: std::collections::BTreeMap<String, proto::Metrics> = Default::default();
-    let mut warm_start_s: Option<f64> = None;
-    let learner_exit = loop {
+    let board = run
+        .launch
+        .tensorboard
+        .then(|| tboard::Keeper::open(&run.out, tboard::Mode::Distributed));
+    let mut progress = Progress::new(resolved.file.train.rl.episodes);
+    let mut w = Watched {
+        learner_exit: std::process::ExitStatus::default(),
+        last_values: BTreeMap::new(),
+        warm_start_s: None,
+        board,
+        validation_start,
+    };
+    w.learner_exit = loop {
         if stop.load(Ordering::SeqCst) {
             children.signal(libc::SIGINT);
         }
@@ -358,75 +479,16 @@ pub fn run(launch: Launch, stop: &AtomicBool) -> anyhow::Result<()> {
         if let Some(status) = learner.try_wait()? {
             break status;
         }
-        if let Some(b) = &mut board {
+        page.check(&progress.bar);
+        if let Some(b) = &mut w.board {
             b.tick();
         }
         if let Some(msg) = metrics.recv_timeout(Duration::from_millis(200))? {
-            let sender = msg.header.sender.to_string();
-            let line = serde_json::json!({ "sender": sender, "wall_s": msg.body.wall_time_s, "env_steps": msg.body.env_steps, "episodes": msg.body.episodes, "values": msg.body.values});
-            let _ = writeln!(log, "{line}");
-            last_values.insert(sender, msg.body.clone());
-            if let Some(b) = &mut board {
-                b.live(msg.header.sender, &msg.body);
-            }
-            if msg.header.sender.role == Role::Evaluator {
-                // A point of the learning curve; it reaches metrics.jsonl from the evaluator's
-                // validation.jsonl when the run ends (this live copy is best effort).
-                if let Some(line) = validation_line(&msg.body) {
-                    bar.println(format!(
-                        "validation after {} RL episodes: success {:.2}, collision {:.2}, Disc. {:.3}",
-                        line["episode"], line["success_rate"].as_f64().unwrap_or(f64::NAN),
-                        line["collision_rate"].as_f64().unwrap_or(f64::NAN),
-                        line["discomfort"].as_f64().unwrap_or(f64::NAN)
-                    ));
-                }
-                continue;
-            }
-            if msg.header.sender.role != Role::Learner {
-                continue;
-            }
-            let v = &msg.body.values;
-            let get = |k: &str| v.get(k).copied().unwrap_or(0.0);
-            if warm_start_s.is_none() && get("imitation_done") > 0.5 {
-                warm_start_s = Some(msg.body.wall_time_s);
-            }
-            if get("imitation_done") < 0.5 && v.contains_key("demo_target") {
-                bar.set_prefix("demos");
-                bar.set_message(format!("{}/{}", get("demo_episodes"), get("demo_target")));
-            } else if v.contains_key("imitation_epoch") {
-                bar.set_prefix("imitation");
-                bar.set_message(format!(
-                    "epoch {}/{} loss {:.5}",
-                    get("imitation_epoch"),
-                    get("imitation_epochs"),
-                    get("loss")
-                ));
-            } else if v.contains_key("episodes") && get("imitation_done") > 0.5 {
-                bar.set_prefix("rl");
-                bar.set_position(get("episodes") as u64);
-                bar.set_message(format!(
-                    "ε {:.3} success {:.2} loss {:.5} {:.2} ep/s actors {} lag {:.1}",
-                    get("epsilon"),
-                    get("success_rate"),
-                    get("loss"),
-                    get("episodes_per_s"),
-                    get("actors_alive"),
-                    get("policy_lag_mean")
-                ));
-            }
-            if bar.is_hidden() && last_plain.elapsed() >= Duration::from_secs(10) {
-                last_plain = Instant::now();
-                eprintln!(
-                    "{} {}/{} {}",
-                    bar.prefix(),
-                    bar.position(),
-                    total,
-                    bar.message()
-                );
-            }
+            w.record(&mut log, &msg);
+            progress.show(&msg, &mut w.warm_start_s);
         }
     };
-    bar.finish_and_clear();
+    progress.bar.finish_and_clear();
     // Metrics still queued or in flight when the learner exited (under load its last messages,
     // or all of a short run's, can be): take them before the summary reads each process's
     // last, so that run.json always has the learner's figures. Until 100 ms pass without one,
@@ -436,27 +498,123 @@ pub fn run(launch: Launch, stop: &AtomicBool) -> anyhow::Result<()> {
         let Some(msg) = metrics.recv_timeout(Duration::from_millis(100))? else {
             break;
         };
+        w.record(&mut log, &msg);
+    }
+    Ok(w)
+}
+
+impl Watched {
+    /// One metrics message: its line in `processes.jsonl`, the TensorBoard files, the newest
+    /// of its sender.
+    fn record(&mut self, log: &mut File, msg: &proto::Message<proto::Metrics>) {
         let sender = msg.header.sender.to_string();
         let line = serde_json::json!({ "sender": sender, "wall_s": msg.body.wall_time_s, "env_steps": msg.body.env_steps, "episodes": msg.body.episodes, "values": msg.body.values});
         let _ = writeln!(log, "{line}");
-        if let Some(b) = &mut board {
+        if let Some(b) = &mut self.board {
             b.live(msg.header.sender, &msg.body);
         }
-        last_values.insert(sender, msg.body);
+        self.last_values.insert(sender, msg.body.clone());
     }
-    // The learner is done: actors and the evaluator finish on their own (the evaluator after the
-    // final evaluation); after a stop, they are told to stop too.
-    let interrupted = stop.load(Ordering::SeqCst) || !learner_exit.success();
-    if interrupted {
-        children.signal(libc::SIGINT);
+}
+
+/// The progress bar of a distributed run, from the live metrics (plain lines every 10 s when
+/// stderr is not a terminal).
+struct Progress {
+    bar: ProgressBar,
+    total: u64,
+    last_plain: Instant,
+}
+
+impl Progress {
+    fn new(total: u64) -> Self {
+        let bar = ProgressBar::with_draw_target(Some(total), ProgressDrawTarget::stderr_with_hz(4));
+        bar.set_style(
+            ProgressStyle::with_template(
+                "{prefix:>9} [{elapsed_precise}] {bar:30} {pos}/{len} (ETA {eta}) {msg}",
+            )
+            .expect("template"),
+        );
+        bar.set_prefix("starting");
+        Self {
+            bar,
+            total,
+            last_plain: Instant::now(),
+        }
     }
-    let mut failed = Vec::new();
-    if !learner_exit.success() {
-        failed.push(format!("learner ({learner_exit})"));
+
+    /// A message on the bar: an evaluator's validation point, or the learner's phase
+    /// (demonstrations, imitation, RL) and figures; notes when the warm start ended.
+    fn show(&mut self, msg: &proto::Message<proto::Metrics>, warm_start_s: &mut Option<f64>) {
+        let bar = &self.bar;
+        if msg.header.sender.role == Role::Evaluator {
+            // A point of the learning curve; it reaches metrics.jsonl from the evaluator's
+            // validation.jsonl when the run ends (this live copy is best effort).
+            if let Some(line) = validation_line(&msg.body) {
+                bar.println(format!(
+                    "validation after {} RL episodes: success {:.2}, collision {:.2}, Disc. {:.3}",
+                    line["episode"],
+                    line["success_rate"].as_f64().unwrap_or(f64::NAN),
+                    line["collision_rate"].as_f64().unwrap_or(f64::NAN),
+                    line["discomfort"].as_f64().unwrap_or(f64::NAN)
+                ));
+            }
+            return;
+        }
+        if msg.header.sender.role != Role::Learner {
+            return;
+        }
+        let v = &msg.body.values;
+        let get = |k: &str| v.get(k).copied().unwrap_or(0.0);
+        if warm_start_s.is_none() && get("imitation_done") > 0.5 {
+            *warm_start_s = Some(msg.body.wall_time_s);
+        }
+        if get("imitation_done") < 0.5 && v.contains_key("demo_target") {
+            bar.set_prefix("demos");
+            bar.set_message(format!("{}/{}", get("demo_episodes"), get("demo_target")));
+        } else if v.contains_key("imitation_epoch") {
+            bar.set_prefix("imitation");
+            bar.set_message(format!(
+                "epoch {}/{} loss {:.5}",
+                get("imitation_epoch"),
+                get("imitation_epochs"),
+                get("loss")
+            ));
+        } else if v.contains_key("episodes") && get("imitation_done") > 0.5 {
+            bar.set_prefix("rl");
+            bar.set_position(get("episodes") as u64);
+            bar.set_message(format!(
+                "ε {:.3} success {:.2} loss {:.5} {:.2} ep/s actors {} lag {:.1}",
+                get("epsilon"),
+                get("success_rate"),
+                get("loss"),
+                get("episodes_per_s"),
+                get("actors_alive"),
+                get("policy_lag_mean")
+            ));
+        }
+        if bar.is_hidden() && self.last_plain.elapsed() >= Duration::from_secs(10) {
+            self.last_plain = Instant::now();
+            eprintln!(
+                "{} {}/{} {}",
+                bar.prefix(),
+                bar.position(),
+                self.total,
+                bar.message()
+            );
+        }
     }
-    // An actor or evaluator that started after a short run's learner had already finished
-    // waits for a learner that never comes: once an actor could have left (a finished run's
-    // actors leave at once) or the evaluator finished a last validation, it is told to stop.
+}
+
+/// Waits for the actors and the evaluator. One that started after a short run's learner had
+/// already finished waits for a learner that never comes: once an actor could have left (a
+/// finished run's actors leave at once) or the evaluator finished a last validation, it is told
+/// to stop. What failed is added to `failed`.
+fn wait_for_the_others(
+    children: &mut Children,
+    interrupted: bool,
+    stop: &AtomicBool,
+    failed: &mut Vec<String>,
+) -> anyhow::Result<()> {
     let waited_from = Instant::now();
     for (name, child) in children.list.iter_mut().skip(1) {
         let mut deadline =
@@ -498,66 +656,55 @@ pub fn run(launch: Launch, stop: &AtomicBool) -> anyhow::Result<()> {
             std::thread::sleep(Duration::from_millis(100));
         }
     }
+    Ok(())
+}
+
+/// The learning curve this invocation added (`validation.jsonl`) into `metrics.jsonl`, and the
+/// TensorBoard files finished.
+fn keep_the_logs(run: &Prepared, w: &mut Watched) {
+    let validation_path = run.out.join("validation.jsonl");
     let copied = std::fs::OpenOptions::new()
         .create(true)
         .append(true)
-        .open(out.join("metrics.jsonl"))
+        .open(run.out.join("metrics.jsonl"))
         .context("cannot open metrics.jsonl")
-        .and_then(|mut m| copy_validation(&validation_path, validation_start, &mut m));
+        .and_then(|mut m| copy_validation(&validation_path, w.validation_start, &mut m));
     if let Err(e) = copied {
         eprintln!("warning: the learning curve did not reach metrics.jsonl: {e:#}");
     }
-    if let Some(b) = &mut board {
+    if let Some(b) = &mut w.board {
         b.finish();
     }
-    if !learner_exit.success() {
-        bail!(
-            "processes failed: {} (see {})",
-            failed.join(", "),
-            logs.display()
-        );
-    }
-    if !failed.is_empty() {
-        // The learner finished the schedule: the run is complete; what the others missed (an
-        // actor's episodes, the evaluator's later validations) is said, not fatal.
-        eprintln!(
-            "warning: the learner finished, but processes failed: {} (see {})",
-            failed.join(", "),
-            logs.display()
-        );
-    }
-    if interrupted {
-        eprintln!(
-            "stopped; the learner checkpointed in {}. Continue with the same command and --resume",
-            out.display()
-        );
-        return Ok(());
-    }
+}
+
+/// A finished run: the final evaluation of its policy, `run.json` (its timing, transport and
+/// schedule, the learner's final counters), and the summary (stdout, and `report.md`).
+fn final_report(run: &mut Prepared, mut w: Watched, started: Instant) -> anyhow::Result<()> {
+    let out = &run.out;
+    let launch = &run.launch;
     let rl_end_s = started.elapsed().as_secs_f64();
     let final_start = Instant::now();
-    final_evaluation(&out, &resolved.spec())?;
-    let mut timing = RunTiming::read(&out, "distributed");
-    timing.set("actors", actors);
-    timing.set("transport", plane_name(data_plane));
+    final_evaluation(out, &launch.resolved.spec())?;
+    let mut timing = RunTiming::read(out, "distributed");
+    timing.set("actors", launch.actors);
+    timing.set("transport", plane_name(launch.data_plane));
     // The schedule of updates: the adaptive bounds, or the fixed count per episode.
+    let rl = &launch.resolved.file.train.rl;
     timing.set(
         "replay_ratio",
-        match resolved.file.train.rl.replay_ratio {
+        match rl.replay_ratio {
             Some(r) => serde_json::json!({ "min": r.min, "max": r.max }),
-            None => serde_json::json!(format!(
-                "fixed {}",
-                resolved.file.train.rl.batches_per_episode
-            )),
+            None => serde_json::json!(format!("fixed {}", rl.batches_per_episode)),
         },
     );
-    let warm = warm_start_s.unwrap_or(0.0);
+    let warm = w.warm_start_s.unwrap_or(0.0);
     timing.add_s("warm_start_s", warm);
     timing.add_s("rl_s", (rl_end_s - warm).max(0.0));
     timing.add_s("final_evaluation_s", final_start.elapsed().as_secs_f64());
     timing.add_s("total_s", started.elapsed().as_secs_f64());
-    use_final_ratio(&out, &mut last_values);
-    let summary = distributed_summary(&last_values, &mut timing);
-    timing.write(&out)?;
+    use_final_figures(out, &mut w.last_values)?;
+    let summary = distributed_summary(&w.last_values, &mut timing);
+    timing.write(out)?;
     let report = out.join("report.md");
     if let Ok(mut md) = std::fs::read_to_string(&report) {
         md.push_str(&summary);
@@ -575,62 +722,26 @@ pub fn run(launch: Launch, stop: &AtomicBool) -> anyhow::Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use policy::method::{Method, TrainConfig};
-    use policy::rollout::{rollout, Behaviour};
 
-    /// Issue 44: the realised ratio of `run.json` is the learner's final counters from where its
-    /// training started, whatever its newest metrics message said (here a stale one).
+    /// Issue 52: the learner's figures of `run.json` (the realised replay ratio) are its final
+    /// figures from the run directory, whatever live metrics arrived: none at all (they travel
+    /// best effort; the intermittent `cli_train` failure) or a stale message. Without them the
+    /// run's record is incomplete: an error, not a silent gap.
     #[test]
-    fn the_realised_ratio_comes_from_the_final_counters() {
+    fn the_learner_figures_come_from_the_run_directory() {
         let dir = tempfile::tempdir().unwrap();
-        let cfg = sim::SimConfig::default();
-        let mut core = learner::LearnerCore::new(
-            Method::Sarl,
-            TrainConfig::default(),
-            cfg.humans.count,
-            cfg.dt_s,
-            1,
-        )
-        .unwrap();
-        let mut env = sim::Env::new(cfg.clone(), "env1-invisible".parse().unwrap(), 0).unwrap();
-        let mut episode = |seed| {
-            let orca = Behaviour::Orca {
-                safety_space_m: 0.0,
-            };
-            rollout(&mut env, seed, orca).unwrap()
-        };
-        for seed in 0..2 {
-            core.add_episode(&episode(seed), true).unwrap();
-        }
-        core.imitation(1, |_, _| {}).unwrap();
-        core.start_rl().unwrap();
-        let start = core.counters().updates;
-        for seed in 10..12 {
-            core.add_episode(&episode(seed), false).unwrap();
-        }
-        core.train_round(3).unwrap();
-        core.train_round(4).unwrap();
-        assert_eq!(core.counters().updates - start, 7);
-        let run = learner::checkpoint::RunInfo {
-            run_id: "r".into(),
-            setting: "env1-invisible".into(),
-            run_seed: 1,
-            accepted_below: Default::default(),
-        };
-        std::fs::create_dir_all(dir.path().join("checkpoints")).unwrap();
-        let ckpt = dir.path().join("checkpoints").join("latest.ckpt");
-        learner::checkpoint::save(&ckpt, &core, &cfg, &run).unwrap();
-        // The newest message to arrive, from before the last round.
-        let mut m = proto::Metrics::default();
-        for (k, v) in [
-            ("updates_per_episode", 1.5),
-            ("rl_start_episodes", 0.0),
-            ("rl_start_updates", start as f64),
-        ] {
-            m.values.insert(k.into(), v);
-        }
-        let mut last = std::collections::BTreeMap::from([("learner-0".to_string(), m)]);
-        use_final_ratio(dir.path(), &mut last);
+        let mut figures = proto::Metrics::default();
+        figures.values.insert("updates_per_episode".into(), 3.5);
+        learner::record::write(dir.path(), &figures).unwrap();
+        let mut none_arrived = std::collections::BTreeMap::new();
+        use_final_figures(dir.path(), &mut none_arrived).unwrap();
+        assert_eq!(none_arrived["learner-0"].values["updates_per_episode"], 3.5);
+        let mut stale = proto::Metrics::default();
+        stale.values.insert("updates_per_episode".into(), 1.5);
+        let mut last = std::collections::BTreeMap::from([("learner-0".to_string(), stale)]);
+        use_final_figures(dir.path(), &mut last).unwrap();
         assert_eq!(last["learner-0"].values["updates_per_episode"], 3.5);
+        std::fs::remove_file(learner::record::path(dir.path())).unwrap();
+        assert!(use_final_figures(dir.path(), &mut last).is_err());
     }
 }
