@@ -89,7 +89,7 @@ pub struct ServeArgs {
     #[arg(long, allow_negative_numbers = true)]
     pub period_s: Option<f64>,
     /// Zero command when odometry or people are older than this many periods.
-    #[arg(long, default_value_t = 2.0, allow_negative_numbers = true)]
+    #[arg(long, default_value_t = serve::control::DEFAULT_STALE_PERIODS, allow_negative_numbers = true)]
     pub stale_periods: f64,
     /// Largest linear speed sent, m/s [default: no limit but the model's actions].
     #[arg(long, allow_negative_numbers = true)]
@@ -119,8 +119,8 @@ pub struct ServeArgs {
     /// 0: the paper's one-step lookahead) [default: the model's own `train.planning_top_k`].
     #[arg(long, value_name = "K")]
     pub planning_top_k: Option<usize>,
-    /// When planning, try the M best one-step actions as second steps (0: every action; fewer
-    /// cost less) [default: the model's own `train.planning_breadth`].
+    /// With --planning-top-k, try the M best one-step actions as second steps (0: every
+    /// action; fewer cost less) [default: the model's own `train.planning_breadth`].
     #[arg(long, value_name = "M")]
     pub planning_breadth: Option<usize>,
     /// Threads one decision's network work is split over (the decision is the same; worth it

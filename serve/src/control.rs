@@ -2,11 +2,16 @@
 //! arrived) in, a command and the reason for a stop out. Every safety rule lives here:
 //!
 //! - a stop (zero command) with a reason whenever there is no usable decision: no odometry,
-//!   goal or people yet; odometry or people older than `stale_after` (two periods by default);
+//!   goal or people yet; odometry or people stale (below); no decision for a period in lockstep
+//!   while odometry and people are never stamped alike;
 //!   the goal reached (closer than the robot's radius, the simulator's rule); a goal in another
 //!   frame than odometry's (refused: there is no TF here); people in another frame; more people
 //!   in one message than `max_people` (refused); stamps from another clock or the future
 //!   (below); a decision that took longer than its budget; the policy failing; shutdown;
+//! - staleness: an odometry or people message is stale `stale_after` after it arrived
+//!   ([`DEFAULT_STALE_PERIODS`] periods by default), or earlier, once its stamp is older than
+//!   `stale_after` + tolerance on this computer's clock ([`Clock::System`]): old data cannot
+//!   drive however late it arrived;
 //! - stamps: with [`Clock::System`] every odometry and people stamp must lie within the
 //!   tolerance of this computer's clock when it arrives (ahead: refused; behind by more than
 //!   `stale_after` + tolerance: refused), a goal must not be stamped ahead of it; with either
@@ -72,6 +77,11 @@ pub enum StopReason {
     DecisionTooSlow {
         took_s: f64,
         budget_s: f64,
+    },
+    /// Lockstep (`--trigger odometry`): fresh inputs but no decision for a period, the people
+    /// stamped `offset_s` from the odometry (a decision needs both stamped alike).
+    OutOfStep {
+        offset_s: f64,
     },
     PolicyFailed(String),
     ModelNotLoaded(String),
@@ -140,6 +150,10 @@ impl std::fmt::Display for StopReason {
                 took_s * 1e3,
                 budget_s * 1e3
             ),
+            StopReason::OutOfStep { offset_s } => write!(
+                f,
+                "no decision for a period: people stamped {offset_s:+.3} s from the odometry (--trigger odometry decides when both carry the same stamp)"
+            ),
             StopReason::PolicyFailed(e) => write!(f, "the policy failed: {e}"),
             StopReason::ModelNotLoaded(e) => write!(f, "the model did not load: {e}"),
             StopReason::Shutdown => write!(f, "shutting down"),
@@ -162,7 +176,7 @@ pub enum Clock {
 /// Settings of the loop.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Safety {
-    /// Inputs older than this stop the robot (default two control periods).
+    /// Inputs older than this stop the robot (default [`DEFAULT_STALE_PERIODS`] periods).
     pub stale_after: Duration,
     pub limits: Limits,
     pub clock: Clock,
@@ -188,6 +202,11 @@ impl Safety {
         }
     }
 }
+
+/// Periods after which an input is stale by default: the zero command goes out at the stale
+/// instant (the loop wakes for it), 1.5 periods after the last input, half a period inside the
+/// promise of a zero command within two periods of the inputs stopping.
+pub const DEFAULT_STALE_PERIODS: f64 = 1.5;
 
 /// Most people in one message by default: a decision with 64 people takes ~5 ms (against
 /// 0.5 ms with 5), far inside a 0.25 s period.
@@ -238,12 +257,29 @@ impl Counters {
     }
 }
 
+/// When an accepted input arrived and when it turns stale.
+#[derive(Debug, Clone, Copy)]
+struct Fresh {
+    at: Instant,
+    /// `at` + `stale_after`, or earlier when the stamp was already old on arrival.
+    expires: Instant,
+    /// How much older than its arrival the stamp was (0 unless on this computer's clock).
+    lag_s: f64,
+}
+
+impl Fresh {
+    /// The input's age at `now`: since it arrived, plus how old its stamp was then.
+    fn age_s(&self, now: Instant) -> f64 {
+        now.saturating_duration_since(self.at).as_secs_f64() + self.lag_s
+    }
+}
+
 #[derive(Debug, Clone)]
 struct OdomIn {
     frame: String,
     stamp: Time,
     robot: RobotObs,
-    at: Instant,
+    fresh: Fresh,
 }
 
 #[derive(Debug, Clone)]
@@ -292,7 +328,7 @@ pub struct Controller {
     safety: Safety,
     format: PeopleFormat,
     odom: Option<OdomIn>,
-    people: Option<(PeopleObs, Instant)>,
+    people: Option<(PeopleObs, Fresh)>,
     goal: Option<GoalIn>,
     /// Why the goal, the odometry, the people were last refused (until a good one comes).
     refusal: Option<StopReason>,
@@ -367,6 +403,24 @@ impl Controller {
         None
     }
 
+    /// When an input stamped `stamp` arriving at `arrival` turns stale: `stale_after` after
+    /// its arrival, or, on this computer's clock, once the stamp is `stale_after` + tolerance
+    /// old (a stamp within the tolerance of the clock counts as on time).
+    fn fresh(&self, stamp: Time, arrival: Arrival) -> Fresh {
+        let stale_s = self.safety.stale_after.as_secs_f64();
+        let lag_s = match self.safety.clock {
+            Clock::System => (arrival.unix_s - stamp.as_secs_f64()).max(0.0),
+            Clock::Odometry => 0.0,
+        };
+        let by_stamp_s = stale_s + self.safety.stamp_tolerance.as_secs_f64() - lag_s;
+        let left_s = stale_s.min(by_stamp_s).max(0.0);
+        Fresh {
+            at: arrival.at,
+            expires: arrival.at + Duration::from_secs_f64(left_s),
+            lag_s,
+        }
+    }
+
     /// An odometry message arrived.
     pub fn on_odometry(&mut self, bytes: &[u8], arrival: Arrival) -> Intake {
         let o: Odometry = match msg::decode(bytes) {
@@ -407,7 +461,7 @@ impl Controller {
             frame: o.header.frame_id,
             stamp: o.header.stamp,
             robot,
-            at: arrival.at,
+            fresh: self.fresh(o.header.stamp, arrival),
         });
         self.check_goal_frame()
     }
@@ -453,7 +507,8 @@ impl Controller {
         }
         self.counters.people += 1;
         self.people_refusal = None;
-        self.people = Some((p, arrival.at));
+        let fresh = self.fresh(p.header.stamp, arrival);
+        self.people = Some((p, fresh));
         Intake::Accepted
     }
 
@@ -516,13 +571,17 @@ impl Controller {
     /// The first instant at which an input held now turns stale (the loop wakes then, between
     /// its ticks, to send the stop at once).
     pub fn stale_at(&self) -> Option<Instant> {
-        let odom = self.odom.as_ref().map(|o| o.at);
-        let people = self.people.as_ref().map(|(_, at)| *at);
-        [odom, people]
-            .into_iter()
-            .flatten()
-            .min()
-            .map(|at| at + self.safety.stale_after)
+        let odom = self.odom.as_ref().map(|o| o.fresh.expires);
+        let people = self.people.as_ref().map(|(_, f)| f.expires);
+        [odom, people].into_iter().flatten().min()
+    }
+
+    /// Lockstep: the people's stamp minus the odometry's, when both are held.
+    pub fn step_offset_s(&self) -> Option<f64> {
+        match (&self.odom, &self.people) {
+            (Some(o), Some((p, _))) => Some(p.header.stamp.as_secs_f64() - o.stamp.as_secs_f64()),
+            _ => None,
+        }
     }
 
     /// The observation at `now`, or why there is none.
@@ -530,22 +589,20 @@ impl Controller {
         let Some(o) = &self.odom else {
             return Err(self.odom_refusal.clone().unwrap_or(StopReason::NoOdometry));
         };
-        let age = now.saturating_duration_since(o.at);
-        if age >= self.safety.stale_after {
+        if now >= o.fresh.expires {
             return Err(StopReason::StaleOdometry {
-                age_s: age.as_secs_f64(),
+                age_s: o.fresh.age_s(now),
             });
         }
         let Some(g) = &self.goal else {
             return Err(self.refusal.clone().unwrap_or(StopReason::NoGoal));
         };
-        let Some((p, at)) = &self.people else {
+        let Some((p, fresh)) = &self.people else {
             return Err(self.people_refusal.clone().unwrap_or(StopReason::NoPeople));
         };
-        let age = now.saturating_duration_since(*at);
-        if age >= self.safety.stale_after {
+        if now >= fresh.expires {
             return Err(StopReason::StalePeople {
-                age_s: age.as_secs_f64(),
+                age_s: fresh.age_s(now),
             });
         }
         if p.header.frame_id != o.frame {
@@ -935,6 +992,43 @@ mod tests {
             Intake::Accepted
         );
         assert_eq!(c.step(&mut pol, t0).stop, None);
+    }
+
+    #[test]
+    fn an_input_stamped_long_before_it_arrived_turns_stale_by_its_stamp() {
+        let mut pol = policy();
+        let mut c = on_system_clock(DEFAULT_MAX_PEOPLE);
+        let t0 = Instant::now();
+        let now_s = 1.7e9;
+        let at = Arrival {
+            at: t0,
+            unix_s: now_s,
+        };
+        c.on_goal(&goal("odom", now_s - 60.0), at);
+        c.on_people(&people("odom", now_s), at);
+        // Stamped 0.8 s before it arrived: accepted (0.5 s stale + 0.5 s of tolerance), and
+        // stale 0.2 s later, when its stamp is 1.0 s old, not 0.5 s after its arrival.
+        assert_eq!(
+            c.on_odometry(&odom("odom", now_s - 0.8, -4.0), at),
+            Intake::Accepted
+        );
+        assert_eq!(c.step(&mut pol, t0).stop, None);
+        // (1.7e9 s in f64 and a stamp's nanoseconds: within a microsecond)
+        let stale_in = c.stale_at().unwrap() - t0;
+        assert!(
+            stale_in.abs_diff(Duration::from_millis(200)) < Duration::from_micros(1),
+            "{stale_in:?}"
+        );
+        let later = t0 + Duration::from_millis(250);
+        let stop = c.step(&mut pol, later).stop;
+        assert!(
+            matches!(stop, Some(StopReason::StaleOdometry { age_s }) if (age_s - 1.05).abs() < 1e-5),
+            "{stop:?}"
+        );
+        // Stamped on time: stale 0.5 s after it arrived.
+        c.on_odometry(&odom("odom", now_s, -4.0), at);
+        assert_eq!(c.step(&mut pol, later).stop, None);
+        assert_eq!(c.stale_at(), Some(t0 + Duration::from_millis(500)));
     }
 
     #[test]

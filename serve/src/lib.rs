@@ -11,10 +11,12 @@
 //! - [`control`]: the loop's logic without IO: staleness, goal and frame checks, stamps against
 //!   the clock and each other, the people cap, the decision budget, limits, the reason for
 //!   every zero command, counting of undecodable and refused input;
-//! - [`node`]: `fsrl serve` on zenoh ([`node::run`]): latest-value slots for the inputs, the
-//!   loop that takes its deadline first, the command publisher (congestion control `Drop`),
-//!   the queryable `fsrl/serve/<name>/act` (MessagePack, `proto::serve`) behind a bounded
-//!   queue and its own worker, liveliness;
+//! - [`node`]: `fsrl serve` on zenoh ([`node::run`], in named phases): latest-value slots
+//!   for the inputs taken all at once, the loop that takes its deadline first, the start-up's
+//!   timing of the decision budget, the command publisher (congestion control `Drop`, a final
+//!   zero command whatever ends the loop), liveliness;
+//! - [`queries`]: the queryable `fsrl/serve/<name>/act` (MessagePack, `proto::serve`) behind
+//!   bounded queues, answered and refused on threads of their own, never on zenoh's;
 //! - [`standin`]: `fsrl sim --as-robot` ([`standin::run`]).
 //!
 //! Depends on `sim`, `policy`, `learner` (model files), `proto` and `transport` (zenoh
@@ -24,6 +26,7 @@ pub mod control;
 pub mod msg;
 pub mod node;
 pub mod people;
+pub mod queries;
 pub mod ros2;
 pub mod served;
 pub mod standin;

@@ -2,18 +2,23 @@
 //! the queryable, rmw_zenoh's liveliness tokens and attachments, and the loop over one closed
 //! [`Event`] enum on the calling thread.
 //!
+//! [`run`] reads top to bottom: check the options, open the node and the command publisher,
+//! load the policy ([`load_policy`]), time one decision at the most the options allow
+//! ([`check_budget`]), start the queryable's threads, subscribe, then drive ([`Driver`]) until
+//! stopped, and sum up.
+//!
 //! What keeps the loop on time whatever arrives: each input topic has one latest-value slot
-//! ([`Inbox`]: a newer message replaces an older one not read yet, nothing queues); the loop
-//! takes the deadline (its tick, or the instant an input turns stale) before any input, so the
-//! staleness check and the stop run every period under any flood; a people message holding
-//! more than `max_people` is refused and a decision over its budget dropped, so no one step
-//! takes long; `cmd_vel` is published with congestion control `Drop` at priority `RealTime`
-//! ([`RosNode::command_publisher`]), so a subscriber that does not read cannot block it; and
-//! queries go through a bounded queue ([`QUERY_QUEUE`],
-//! refused with a reply beyond, counted) to a worker thread with its own copy of the policy,
-//! so neither a query flood nor an asker that does not read its replies reaches the loop.
+//! ([`Inbox`]: a newer message replaces an older one not read yet, nothing queues) and the loop
+//! takes every slot at once, so no topic starves another; it takes the deadline (its tick, the
+//! instant an input turns stale, or in lockstep a period without a command) before any input,
+//! so the staleness check and the stop run every period under any flood; a people message
+//! holding more than `max_people` is refused, and a decision with that many cannot take longer
+//! than the budget (timed at start-up), so no one step takes long; `cmd_vel` is published with
+//! congestion control `Drop` at priority `RealTime` ([`RosNode::command_publisher`]), so a
+//! subscriber that does not read cannot block it; queries never reach the loop nor block
+//! zenoh's threads ([`crate::queries`]); and whatever ends the loop, a panic included, its last
+//! command is a zero one ([`FinalStop`]).
 
-use std::collections::VecDeque;
 use std::path::PathBuf;
 use std::sync::{Arc, Condvar, Mutex, MutexGuard, PoisonError};
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
@@ -22,18 +27,21 @@ use zenoh::bytes::ZBytes;
 use zenoh::liveliness::LivelinessToken;
 use zenoh::pubsub::{Publisher, Subscriber};
 use zenoh::qos::{CongestionControl, Priority};
-use zenoh::query::{Query, Queryable};
+use zenoh::query::Queryable;
 use zenoh::{Session, Wait};
 
 use crate::control::{
     Arrival, Clock, Controller, Intake, Output, Safety, StopKind, StopReason, DEFAULT_MAX_PEOPLE,
+    DEFAULT_STALE_PERIODS,
 };
 use crate::msg::{
     self, AgentStates, Odometry, People, PoseStamped, RosMsg, TrackedPersons, Twist, Vector3,
 };
-use crate::people::{PeopleFormat, PersonObs};
+use crate::people::PeopleFormat;
+use crate::queries::Queries;
+pub use crate::queries::{QueryCounts, QUERY_QUEUE, QUERY_QUEUE_BYTES};
 use crate::ros2::{check_topic, gid_of, Attachment, Entity, NodeId, Ros2Style};
-use crate::served::{Command, Limits, Observation, RobotObs, ServedPolicy};
+use crate::served::{Command, Limits, Observation, ServedPolicy};
 
 /// Topic names (ROS 2 names; `/`-rooted or relative, both map to the same key).
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -87,7 +95,7 @@ pub struct ServeOptions {
     pub trigger: Trigger,
     /// Control period in seconds; default the model's step.
     pub period_s: Option<f64>,
-    /// Stale after this many periods (default 2).
+    /// Stale after this many periods (default [`DEFAULT_STALE_PERIODS`]).
     pub stale_periods: f64,
     pub limits: Limits,
     /// Whose clock the stamps are on (default this computer's).
@@ -118,14 +126,10 @@ pub const MAX_PERIOD_S: f64 = 60.0;
 pub const MAX_STALE_PERIODS: f64 = 1.0e6;
 /// Largest stamp tolerance accepted, in seconds.
 pub const MAX_STAMP_TOLERANCE_S: f64 = 3600.0;
-/// Most queries waiting for the policy; a query beyond is refused at once (counted).
-pub const QUERY_QUEUE: usize = 32;
-/// Most bytes of queries waiting.
-pub const QUERY_QUEUE_BYTES: usize = 4 << 20;
 
 impl ServeOptions {
     /// The defaults of `fsrl serve MODEL`: bridge keys, default topics, people_msgs, the
-    /// timer, the model's period, stale after 2 periods, no limits, this computer's clock
+    /// timer, the model's period, stale after [`DEFAULT_STALE_PERIODS`] periods, no limits, this computer's clock
     /// with 0.5 s of tolerance, [`DEFAULT_MAX_PEOPLE`], half a period of decision budget,
     /// a peer listening on loopback.
     pub fn new(model: impl Into<PathBuf>) -> Self {
@@ -137,7 +141,7 @@ impl ServeOptions {
             people_format: PeopleFormat::People,
             trigger: Trigger::Timer,
             period_s: None,
-            stale_periods: 2.0,
+            stale_periods: DEFAULT_STALE_PERIODS,
             limits: Limits::default(),
             clock: Clock::System,
             stamp_tolerance_s: 0.5,
@@ -202,6 +206,14 @@ impl ServeOptions {
                 problems.push(format!("{flag} {v}: must be at most {max}"));
             }
         }
+        // As training refuses `train.planning_breadth` without `train.planning_top_k`.
+        if let Some(m) = self.planning_breadth.filter(|&m| m > 0) {
+            if self.planning_top_k.unwrap_or(0) == 0 {
+                problems.push(format!(
+                    "--planning-breadth {m} needs --planning-top-k of at least 1 (no planning, no second steps)"
+                ));
+            }
+        }
         problems.extend(self.limits.check());
         if let Err(e) = self.topics.check() {
             problems.push(e);
@@ -234,24 +246,40 @@ fn zerr(what: &'static str) -> impl Fn(zenoh::Error) -> ServeError {
 
 /// What the loop reacts to, in the order it takes them ([`Inbox::next`]): a stop request,
 /// the deadline (the control period's tick or the instant an input turns stale), then the
-/// latest odometry, goal and people.
+
+/// What the loop reacts to, in the order it takes them ([`Inbox::next`]): a stop request,
+/// the deadline (the control period's tick, the instant an input turns stale, or in lockstep
+/// a period without a command), then every input that came, all at once.
 pub enum Event {
     Shutdown,
     Deadline,
-    Odometry(Vec<u8>, Arrival),
-    Goal(Vec<u8>, Arrival),
-    People(Vec<u8>, Arrival),
+    Inputs(Inputs),
+}
+
+/// The latest message of each input topic not read yet, with when it arrived.
+#[derive(Default)]
+pub struct Inputs {
+    pub odometry: Option<(Vec<u8>, Arrival)>,
+    pub goal: Option<(Vec<u8>, Arrival)>,
+    pub people: Option<(Vec<u8>, Arrival)>,
+}
+
+impl Inputs {
+    fn is_empty(&self) -> bool {
+        self.odometry.is_none() && self.goal.is_none() && self.people.is_none()
+    }
 }
 
 /// The latest input of each topic, waiting for the loop: a newer message replaces an older
 /// one not read yet (counted), so nothing queues up behind a slow loop.
 #[derive(Default)]
 struct Slots {
-    odometry: Option<(Vec<u8>, Arrival)>,
-    goal: Option<(Vec<u8>, Arrival)>,
-    people: Option<(Vec<u8>, Arrival)>,
+    inputs: Inputs,
     shutdown: bool,
     replaced: u64,
+    /// A test's way to make the loop panic (the final zero command's test).
+    #[cfg(test)]
+    panic: bool,
 }
 
 /// Which slot.
@@ -298,9 +326,9 @@ impl Inbox {
     fn put(&self, input: Input, bytes: Vec<u8>, arrival: Arrival) {
         let mut s = self.lock();
         let slot = match input {
-            Input::Odometry => &mut s.odometry,
-            Input::Goal => &mut s.goal,
-            Input::People => &mut s.people,
+            Input::Odometry => &mut s.inputs.odometry,
+            Input::Goal => &mut s.inputs.goal,
+            Input::People => &mut s.inputs.people,
         };
         let old = slot.replace((bytes, arrival));
         if old.is_some() {
@@ -318,11 +346,18 @@ impl Inbox {
     }
 
     /// The next event: [`Event::Shutdown`] when asked; [`Event::Deadline`] once `deadline`
-    /// has passed, before any input, however many arrive; else the latest odometry, goal or
-    /// people; else it waits, until `deadline` at the latest.
+    /// has passed, before any input, however many arrive; else every input waiting, at once
+    /// (a flood on one topic cannot hold back the others); else it waits, until `deadline` at
+    /// the latest.
     pub fn next(&self, deadline: Instant) -> Event {
         let mut s = self.lock();
         loop {
+            #[cfg(test)]
+            if s.panic {
+                s.panic = false;
+                drop(s);
+                panic!("a panic in the loop, as a test asked");
+            }
             if s.shutdown {
                 return Event::Shutdown;
             }
@@ -330,14 +365,8 @@ impl Inbox {
             if now >= deadline {
                 return Event::Deadline;
             }
-            if let Some((b, a)) = s.odometry.take() {
-                return Event::Odometry(b, a);
-            }
-            if let Some((b, a)) = s.goal.take() {
-                return Event::Goal(b, a);
-            }
-            if let Some((b, a)) = s.people.take() {
-                return Event::People(b, a);
+            if !s.inputs.is_empty() {
+                return Event::Inputs(std::mem::take(&mut s.inputs));
             }
             s = self
                 .shared
@@ -349,109 +378,6 @@ impl Inbox {
     }
 }
 
-/// The queries waiting for the query worker: at most [`QUERY_QUEUE`] of them and
-/// [`QUERY_QUEUE_BYTES`] of payload; one more is refused at once, with a reply that says so.
-#[derive(Default)]
-struct QueryQueue {
-    state: Mutex<QueryState>,
-    ready: Condvar,
-}
-
-#[derive(Default)]
-struct QueryState {
-    waiting: VecDeque<(Query, Vec<u8>)>,
-    bytes: usize,
-    refused: u64,
-    answered: u64,
-    closed: bool,
-}
-
-impl QueryQueue {
-    fn lock(&self) -> MutexGuard<'_, QueryState> {
-        self.state.lock().unwrap_or_else(PoisonError::into_inner)
-    }
-
-    /// From zenoh's callback: queued, or refused with a reply (on the asker's own link).
-    fn offer(&self, q: Query) {
-        let payload = q
-            .payload()
-            .map(|p| p.to_bytes().into_owned())
-            .unwrap_or_default();
-        let mut s = self.lock();
-        if s.closed {
-            return;
-        }
-        let full = s.waiting.len() >= QUERY_QUEUE || s.bytes + payload.len() > QUERY_QUEUE_BYTES;
-        if !full {
-            s.bytes += payload.len();
-            s.waiting.push_back((q, payload));
-            drop(s);
-            self.ready.notify_one();
-            return;
-        }
-        s.refused += 1;
-        let (n, waiting) = (s.refused, s.waiting.len());
-        drop(s);
-        if n.is_power_of_two() {
-            tracing::warn!(
-                "query refused: {waiting} are waiting, at most {QUERY_QUEUE} (#{n} refused)"
-            );
-        }
-        let reply = proto::serve::ActReply::refused(format!(
-            "busy: {waiting} queries are waiting, at most {QUERY_QUEUE}; ask again later"
-        ));
-        if let Err(e) = q.reply(q.key_expr().clone(), reply.encode()).wait() {
-            tracing::debug!("cannot refuse a query: {e}");
-        }
-    }
-
-    /// For the worker: the next query, or `None` once closed.
-    fn take(&self) -> Option<(Query, Vec<u8>)> {
-        let mut s = self.lock();
-        loop {
-            if s.closed {
-                return None;
-            }
-            if let Some((q, payload)) = s.waiting.pop_front() {
-                s.bytes -= payload.len();
-                return Some((q, payload));
-            }
-            s = self.ready.wait(s).unwrap_or_else(PoisonError::into_inner);
-        }
-    }
-
-    fn close(&self) -> (u64, u64) {
-        let mut s = self.lock();
-        s.closed = true;
-        let waiting = std::mem::take(&mut s.waiting);
-        let counts = (s.answered, s.refused);
-        drop(s);
-        self.ready.notify_all();
-        // Dropping a query sends its final reply: off the lock, and off the loop (the worker
-        // or this thread at shutdown).
-        drop(waiting);
-        counts
-    }
-}
-
-/// The query worker: answers the queue's queries with its own copy of the policy, on its own
-/// thread, so a query (or an asker that does not read its replies, which blocks a reply) never
-/// delays the control loop.
-fn answer_queries(
-    queue: Arc<QueryQueue>,
-    mut policy: ServedPolicy,
-    limits: Limits,
-    max_people: usize,
-) {
-    while let Some((q, payload)) = queue.take() {
-        let reply = answer(&mut policy, &limits, max_people, &payload);
-        if let Err(e) = q.reply(q.key_expr().clone(), reply.encode()).wait() {
-            tracing::warn!("cannot reply to a query: {e}");
-        }
-        queue.lock().answered += 1;
-    }
-}
-
 /// What a finished run did.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub struct Summary {
@@ -460,6 +386,8 @@ pub struct Summary {
     pub queries: u64,
     /// Queries refused because the queue was full.
     pub refused_queries: u64,
+    /// Of those, dropped without a reply (the refusals' own queue full too).
+    pub dropped_queries: u64,
     /// Inputs replaced by a newer one before the loop read them.
     pub replaced_inputs: u64,
 }
@@ -654,71 +582,6 @@ fn subscribe_people(
     }
 }
 
-/// The reply to one query: refused when it does not decode, holds more than `max_people`
-/// humans, or the policy refuses its values (out of the simulator's range); its step count is
-/// clamped to the model's time limit.
-fn answer(
-    policy: &mut ServedPolicy,
-    limits: &Limits,
-    max_people: usize,
-    payload: &[u8],
-) -> proto::serve::ActReply {
-    use proto::serve::{ActReply, ActRequest};
-    let req = match ActRequest::decode(payload) {
-        Ok(r) => r,
-        Err(e) => return ActReply::refused(e.to_string()),
-    };
-    if req.humans.len() > max_people {
-        return ActReply::refused(format!(
-            "{} humans, at most {max_people} (--max-people)",
-            req.humans.len()
-        ));
-    }
-    let obs = Observation {
-        robot: RobotObs {
-            position: sim::Vec2::new(req.robot.x_m, req.robot.y_m),
-            velocity: sim::Vec2::new(req.robot.vx_mps, req.robot.vy_mps),
-            heading_rad: req.robot.heading_rad,
-        },
-        goal: sim::Vec2::new(req.goal.x_m, req.goal.y_m),
-        humans: req
-            .humans
-            .iter()
-            .map(|h| PersonObs {
-                position: sim::Vec2::new(h.x_m, h.y_m),
-                velocity: sim::Vec2::new(h.vx_mps, h.vy_mps),
-                radius_m: h.radius_m,
-                goal: h
-                    .goal_x_m
-                    .zip(h.goal_y_m)
-                    .map(|(x, y)| sim::Vec2::new(x, y)),
-                v_pref_mps: h.v_pref_mps,
-                standing: h.standing,
-            })
-            .collect(),
-        steps: req.steps,
-    };
-    let t = Instant::now();
-    match policy.decide(&obs) {
-        Ok(d) => {
-            let c = d.command.limited(limits);
-            ActReply {
-                ok: true,
-                reason: String::new(),
-                action: d.action as u32,
-                speed_mps: d.speed_mps,
-                rotation_rad: d.rotation_rad,
-                linear_x_mps: c.linear_x_mps,
-                linear_y_mps: c.linear_y_mps,
-                angular_z_radps: c.angular_z_radps,
-                value: d.value,
-                decision_us: t.elapsed().as_secs_f64() * 1e6,
-            }
-        }
-        Err(e) => ActReply::refused(e.to_string()),
-    }
-}
-
 /// Logs a stop when its kind changes (not every period, not when only its numbers change).
 fn log_transition(last: &mut Option<Option<StopKind>>, out: &Output) {
     let now = out.stop.as_ref().map(StopReason::kind);
@@ -752,10 +615,11 @@ fn safety_of(opts: &ServeOptions, period: Duration) -> Result<Safety, ServeError
 
 /// Runs `fsrl serve` until its [`Stopper`] is called (give [`Inbox::stopper`] to a signal
 /// handler). Checks `opts` first ([`ServeOptions::check`]: nothing is opened if they are
-/// wrong). Calls `on_ready` once, when the model is loaded and every subscriber, the command
-/// publisher and the queryable are declared (the CLI then prints `ready`, which tests wait
-/// for). A model that does not load is reported with a zero command on `cmd_vel` before the
-/// error returns, without `on_ready`.
+/// wrong). Calls `on_ready` once, when the model is loaded, a decision at the most the options
+/// allow has been timed within the budget, and every subscriber, the command publisher and the
+/// queryable are declared (the CLI then prints `ready`, which tests wait for). A model that
+/// does not load, or decides too slowly, is reported with a zero command on `cmd_vel` before
+/// the error returns, without `on_ready`.
 pub fn run(
     opts: &ServeOptions,
     inbox: Inbox,
@@ -766,71 +630,23 @@ pub fn run(
         proto::keys::serve_act(&opts.name).map_err(|e| ServeError::Config(e.to_string()))?;
     let mut node = RosNode::open(&opts.zenoh, opts.style.clone(), &opts.name)?;
     let mut cmd = node.command_publisher::<Twist>(&opts.topics.cmd_vel)?;
-    let mut policy = match ServedPolicy::load(&opts.model, opts.robot_visible) {
-        Ok(p) => {
-            let p = match opts.planning_top_k {
-                Some(k) => p.with_planning_top_k(k),
-                None => p,
-            };
-            match opts.planning_breadth {
-                Some(m) => p.with_planning_breadth(m),
-                None => p,
-            }
-            .with_threads(opts.threads)
-        }
-        Err(e) => {
-            let reason = StopReason::ModelNotLoaded(e.to_string());
-            tracing::error!("zero command: {reason}");
-            // Give a subscriber that is connecting a moment to match, so the stop reaches it.
-            let deadline = Instant::now() + Duration::from_secs(2);
-            while !cmd.matched() && Instant::now() < deadline {
-                std::thread::sleep(Duration::from_millis(20));
-            }
-            cmd.put(&Twist::ZERO)?;
-            return Err(e.into());
-        }
-    };
+    let mut policy = load_policy(opts).or_else(|e| refuse_to_start(&mut cmd, e))?;
     let period = match opts.period_s {
         Some(s) => Duration::try_from_secs_f64(s)
             .map_err(|e| ServeError::Config(format!("--period-s {s}: {e}")))?,
         None => Duration::from_secs_f64(policy.period_s()),
     };
     let safety = safety_of(opts, period)?;
-    let mut control = Controller::new(safety, opts.people_format);
+    let worst = check_budget(&mut policy, &safety).or_else(|e| refuse_to_start(&mut cmd, e))?;
 
-    let queries = Arc::new(QueryQueue::default());
-    let worker_policy = ServedPolicy::from_model(policy.model().clone(), opts.robot_visible)?
-        .with_threads(opts.threads);
-    let worker = {
-        let queries = queries.clone();
-        let (limits, max_people) = (opts.limits, opts.max_people);
-        std::thread::Builder::new()
-            .name("fsrl-serve-queries".into())
-            .spawn(move || answer_queries(queries, worker_policy, limits, max_people))
-            .map_err(|e| ServeError::Config(format!("cannot start the query worker: {e}")))?
-    };
-
-    let i = inbox.clone();
-    let _odom = node.subscribe::<Odometry>(&opts.topics.odom, move |b| {
-        i.put(Input::Odometry, b, Arrival::now())
-    })?;
-    let i = inbox.clone();
-    let _goal = node.subscribe::<PoseStamped>(&opts.topics.goal, move |b| {
-        i.put(Input::Goal, b, Arrival::now())
-    })?;
-    let _people = subscribe_people(
-        &mut node,
-        &opts.topics.people,
-        opts.people_format,
-        inbox.clone(),
+    let mut queries = Queries::start(
+        ServedPolicy::from_model(policy.model().clone(), opts.robot_visible)?
+            .with_threads(opts.threads),
+        opts.limits,
+        opts.max_people,
     )?;
-    let q = queries.clone();
-    let queryable: Queryable<()> = node
-        .session
-        .declare_queryable(act_key.clone())
-        .callback(move |query| q.offer(query))
-        .wait()
-        .map_err(zerr("declare queryable"))?;
+    let subscribers = subscribe_inputs(&mut node, opts, &inbox)?;
+    let queryable = declare_queryable(&node, &act_key, &queries)?;
     tracing::info!(
         model = %opts.model.display(),
         method = %policy.model().method,
@@ -840,109 +656,127 @@ pub fn run(
         clock = ?safety.clock,
         max_people = safety.max_people,
         decision_budget_s = safety.decision_budget.as_secs_f64(),
+        slowest_decision_ms = worst.as_secs_f64() * 1e3,
         queryable = %act_key,
         "serving"
     );
     on_ready();
 
-    let mut summary = Summary::default();
-    let mut last_log = None;
-    let mut next_tick = Instant::now() + period;
-    // Stale instants up to this one have been acted on.
-    let mut watched = Instant::now();
-    let publish = |cmd: &mut RosPublisher, out: &Output, last: &mut _| {
-        log_transition(last, out);
-        if let Err(e) = cmd.put(&twist_of(&out.command)) {
-            tracing::warn!("cannot publish the command: {e}");
-        }
+    let mut driver = Driver::new(
+        Controller::new(safety, opts.people_format),
+        period,
+        opts.trigger == Trigger::Odometry,
+    );
+    driver.run(&inbox, &mut policy, &mut cmd);
+
+    drop(queryable);
+    drop(subscribers);
+    let summary = summarise(&driver.control, &mut queries, &inbox);
+    drop(node);
+    Ok(summary)
+}
+
+/// The model with the options' planning and threads.
+fn load_policy(opts: &ServeOptions) -> Result<ServedPolicy, ServeError> {
+    let mut p = ServedPolicy::load(&opts.model, opts.robot_visible)?;
+    if let Some(k) = opts.planning_top_k {
+        p = p.with_planning_top_k(k);
+    }
+    if let Some(m) = opts.planning_breadth {
+        p = p.with_planning_breadth(m);
+    }
+    Ok(p.with_threads(opts.threads))
+}
+
+/// Why `fsrl serve` does not start, after a zero command on `cmd_vel` (logged with the reason).
+fn refuse_to_start<T>(cmd: &mut RosPublisher, e: ServeError) -> Result<T, ServeError> {
+    let reason = match &e {
+        ServeError::Model(m) => StopReason::ModelNotLoaded(m.to_string()),
+        other => StopReason::PolicyFailed(other.to_string()),
     };
-    let lockstep = opts.trigger == Trigger::Odometry;
-    loop {
-        let stale = control.stale_at().filter(|&t| t > watched);
-        let deadline = stale.map_or(next_tick, |t| t.min(next_tick));
-        let ev = inbox.next(deadline);
-        let out = match ev {
-            Event::Shutdown => {
-                let out = Output::stop(StopReason::Shutdown);
-                publish(&mut cmd, &out, &mut last_log);
-                break;
-            }
-            Event::Deadline => {
-                let now = Instant::now();
-                watched = now;
-                if now >= next_tick {
-                    next_tick += period;
-                    if next_tick < now {
-                        next_tick = now + period;
-                    }
-                    if lockstep {
-                        // The tick is only the watchdog: inputs missing at the start are
-                        // not a fault, the simulator has not begun.
-                        match control.observation(now) {
-                            Err(reason)
-                                if !matches!(
-                                    reason,
-                                    StopReason::NoOdometry
-                                        | StopReason::NoGoal
-                                        | StopReason::NoPeople
-                                ) =>
-                            {
-                                Some(Output::stop(reason))
-                            }
-                            _ => None,
-                        }
-                    } else {
-                        Some(control.step(&mut policy, now))
-                    }
-                } else {
-                    // An input has just turned stale: the stop goes out now, not at the tick.
-                    match control.observation(now) {
-                        Err(
-                            reason @ (StopReason::StaleOdometry { .. }
-                            | StopReason::StalePeople { .. }),
-                        ) => Some(Output::stop(reason)),
-                        _ => None,
-                    }
-                }
-            }
-            Event::Odometry(b, at) => match control.on_odometry(&b, at) {
-                Intake::Undecodable(e) => {
-                    log_count("odometry", control.counters().undecodable_odometry, &e);
-                    None
-                }
-                Intake::Refused(r) => Some(Output::stop(r)),
-                Intake::Accepted => (lockstep && control.synced())
-                    .then(|| control.step(&mut policy, Instant::now())),
-            },
-            Event::People(b, at) => match control.on_people(&b, at) {
-                Intake::Undecodable(e) => {
-                    log_count("people", control.counters().undecodable_people, &e);
-                    None
-                }
-                Intake::Refused(r) => Some(Output::stop(r)),
-                Intake::Accepted => (lockstep && control.synced())
-                    .then(|| control.step(&mut policy, Instant::now())),
-            },
-            Event::Goal(b, at) => match control.on_goal(&b, at) {
-                Intake::Undecodable(e) => {
-                    log_count("goal", control.counters().undecodable_goals, &e);
-                    None
-                }
-                Intake::Refused(r) => Some(Output::stop(r)),
-                Intake::Accepted => None,
-            },
-        };
-        if let Some(out) = out {
-            publish(&mut cmd, &out, &mut last_log);
+    tracing::error!("zero command: {reason}");
+    // Give a subscriber that is connecting a moment to match, so the stop reaches it.
+    let deadline = Instant::now() + Duration::from_secs(2);
+    while !cmd.matched() && Instant::now() < deadline {
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    cmd.put(&Twist::ZERO)?;
+    Err(e)
+}
+
+/// Times one decision at the most the options allow (`max_people` people, the policy's
+/// planning and threads): past the decision budget, every decision with that many people
+/// would be dropped for a zero command, after holding the loop that long, so `fsrl serve`
+/// refuses to start, saying what it measured. The first decision also sets up the policy's
+/// world: a second one is timed when the first is over the budget by less than four times.
+fn check_budget(policy: &mut ServedPolicy, safety: &Safety) -> Result<Duration, ServeError> {
+    let crowd = Observation::crowd(safety.max_people);
+    let budget = safety.decision_budget;
+    let mut took = Duration::MAX;
+    for _ in 0..2 {
+        let started = Instant::now();
+        policy.decide(&crowd)?;
+        took = took.min(started.elapsed());
+        if took <= budget || took > 4 * budget {
+            break;
         }
     }
-    drop(queryable);
-    (summary.queries, summary.refused_queries) = queries.close();
-    // The worker ends after its current reply (it is not waited for: a reply to an asker
-    // that does not read may block it until zenoh closes that link).
-    drop(worker);
-    summary.counters = control.counters();
-    summary.replaced_inputs = inbox.replaced();
+    if took <= budget {
+        return Ok(took);
+    }
+    let train = &policy.model().train;
+    Err(ServeError::Config(format!(
+        "a decision with {} people (--max-people) and planning top-k {} breadth {} takes {:.1} ms, over the budget of {:.1} ms (--decision-budget-s, default half the period): lower --max-people or --planning-top-k, or raise --threads or the budget",
+        safety.max_people,
+        train.planning_top_k,
+        train.planning_breadth,
+        took.as_secs_f64() * 1e3,
+        budget.as_secs_f64() * 1e3
+    )))
+}
+
+/// The input subscribers, each writing into its slot of `inbox`.
+fn subscribe_inputs(
+    node: &mut RosNode,
+    opts: &ServeOptions,
+    inbox: &Inbox,
+) -> Result<[Subscriber<()>; 3], ServeError> {
+    let i = inbox.clone();
+    let odom = node.subscribe::<Odometry>(&opts.topics.odom, move |b| {
+        i.put(Input::Odometry, b, Arrival::now())
+    })?;
+    let i = inbox.clone();
+    let goal = node.subscribe::<PoseStamped>(&opts.topics.goal, move |b| {
+        i.put(Input::Goal, b, Arrival::now())
+    })?;
+    let people = subscribe_people(node, &opts.topics.people, opts.people_format, inbox.clone())?;
+    Ok([odom, goal, people])
+}
+
+/// The queryable `act_key`: each query handed to `queries` at once.
+fn declare_queryable(
+    node: &RosNode,
+    act_key: &str,
+    queries: &Queries,
+) -> Result<Queryable<()>, ServeError> {
+    let offer = queries.offerer();
+    node.session
+        .declare_queryable(act_key.to_string())
+        .callback(move |query| offer.offer(query))
+        .wait()
+        .map_err(zerr("declare queryable"))
+}
+
+/// What the run did, logged and returned.
+fn summarise(control: &Controller, queries: &mut Queries, inbox: &Inbox) -> Summary {
+    let q = queries.close();
+    let summary = Summary {
+        counters: control.counters(),
+        queries: q.answered,
+        refused_queries: q.refused,
+        dropped_queries: q.dropped,
+        replaced_inputs: inbox.replaced(),
+    };
     let c = summary.counters;
     tracing::info!(
         decisions = c.decisions,
@@ -955,10 +789,199 @@ pub fn run(
         replaced_inputs = summary.replaced_inputs,
         queries = summary.queries,
         refused_queries = summary.refused_queries,
+        dropped_queries = summary.dropped_queries,
         "stopped"
     );
-    drop(node);
-    Ok(summary)
+    summary
+}
+
+/// The command publisher as the loop holds it: whatever ends the loop (a shutdown, a panic),
+/// the last command it sends is a zero one.
+struct FinalStop<'a> {
+    cmd: &'a mut RosPublisher,
+    last_was_zero: bool,
+}
+
+impl FinalStop<'_> {
+    fn put(&mut self, c: &Command) {
+        self.last_was_zero = *c == Command::STOP;
+        if let Err(e) = self.cmd.put(&twist_of(c)) {
+            tracing::warn!("cannot publish the command: {e}");
+        }
+    }
+}
+
+impl Drop for FinalStop<'_> {
+    fn drop(&mut self) {
+        if std::thread::panicking() {
+            tracing::error!("zero command: the loop panicked");
+        } else if self.last_was_zero {
+            return;
+        }
+        if let Err(e) = self.cmd.put(&Twist::ZERO) {
+            tracing::error!("cannot publish the final zero command: {e}");
+        }
+    }
+}
+
+/// The control loop: one [`Event`] at a time from the inbox, each turned into the commands it
+/// calls for.
+struct Driver {
+    control: Controller,
+    period: Duration,
+    /// `--trigger odometry`: decide on each odometry once people of its stamp are in; the
+    /// tick is only the watchdog.
+    lockstep: bool,
+    next_tick: Instant,
+    /// Stale instants up to this one have been acted on.
+    watched: Instant,
+    /// Lockstep: when the first input not yet followed by a command arrived.
+    undecided_since: Option<Instant>,
+    /// The kind of the last command's stop, logged when it changes.
+    last_log: Option<Option<StopKind>>,
+}
+
+impl Driver {
+    fn new(control: Controller, period: Duration, lockstep: bool) -> Self {
+        let now = Instant::now();
+        Self {
+            control,
+            period,
+            lockstep,
+            next_tick: now + period,
+            watched: now,
+            undecided_since: None,
+            last_log: None,
+        }
+    }
+
+    /// Runs until a shutdown; the last command is a zero one, after a panic too.
+    fn run(&mut self, inbox: &Inbox, policy: &mut ServedPolicy, cmd: &mut RosPublisher) {
+        let mut cmd = FinalStop {
+            cmd,
+            last_was_zero: false,
+        };
+        loop {
+            let outs = match inbox.next(self.deadline()) {
+                Event::Shutdown => {
+                    self.publish(&mut cmd, &Output::stop(StopReason::Shutdown));
+                    return;
+                }
+                Event::Deadline => self.on_deadline(policy, Instant::now()),
+                Event::Inputs(inputs) => self.on_inputs(policy, inputs),
+            };
+            for out in &outs {
+                self.publish(&mut cmd, out);
+            }
+        }
+    }
+
+    /// The next instant the loop must act at without input: the tick, the instant an input
+    /// turns stale (not yet acted on), in lockstep a period after an input no command followed.
+    fn deadline(&self) -> Instant {
+        let stale = self.control.stale_at().filter(|&t| t > self.watched);
+        let undecided = self.undecided_since.map(|t| t + self.period);
+        [stale, undecided]
+            .into_iter()
+            .flatten()
+            .fold(self.next_tick, Instant::min)
+    }
+
+    fn publish(&mut self, cmd: &mut FinalStop<'_>, out: &Output) {
+        log_transition(&mut self.last_log, out);
+        cmd.put(&out.command);
+        self.undecided_since = None;
+    }
+
+    fn on_deadline(&mut self, policy: &mut ServedPolicy, now: Instant) -> Vec<Output> {
+        self.watched = now;
+        if self.undecided_since.is_some_and(|t| now >= t + self.period) {
+            // Lockstep, inputs fresh but no decision for a period: the robot must not keep
+            // its last command.
+            let reason = match self.control.observation(now) {
+                Err(reason) => reason,
+                Ok(_) => StopReason::OutOfStep {
+                    offset_s: self.control.step_offset_s().unwrap_or(f64::NAN),
+                },
+            };
+            return vec![Output::stop(reason)];
+        }
+        if now < self.next_tick {
+            // An input has just turned stale: the stop goes out now, not at the tick.
+            return match self.control.observation(now) {
+                Err(
+                    reason @ (StopReason::StaleOdometry { .. } | StopReason::StalePeople { .. }),
+                ) => vec![Output::stop(reason)],
+                _ => Vec::new(),
+            };
+        }
+        self.next_tick += self.period;
+        if self.next_tick < now {
+            self.next_tick = now + self.period;
+        }
+        if !self.lockstep {
+            return vec![self.control.step(policy, now)];
+        }
+        // The tick is only the watchdog: inputs missing at the start are not a fault, the
+        // simulator has not begun.
+        match self.control.observation(now) {
+            Err(StopReason::NoOdometry | StopReason::NoGoal | StopReason::NoPeople) | Ok(_) => {
+                Vec::new()
+            }
+            Err(reason) => vec![Output::stop(reason)],
+        }
+    }
+
+    /// Every input that came, goal first, then people, then odometry (in lockstep a decision
+    /// follows once both are stamped alike).
+    fn on_inputs(&mut self, policy: &mut ServedPolicy, inputs: Inputs) -> Vec<Output> {
+        let mut outs = Vec::new();
+        if let Some((b, at)) = inputs.goal {
+            let r = self.control.on_goal(&b, at);
+            self.intake(Input::Goal, r, at, &mut outs);
+        }
+        let mut fresh = false;
+        if let Some((b, at)) = inputs.people {
+            let r = self.control.on_people(&b, at);
+            fresh |= self.intake(Input::People, r, at, &mut outs);
+        }
+        if let Some((b, at)) = inputs.odometry {
+            let r = self.control.on_odometry(&b, at);
+            fresh |= self.intake(Input::Odometry, r, at, &mut outs);
+        }
+        if self.lockstep && fresh && self.control.synced() {
+            outs.push(self.control.step(policy, Instant::now()));
+        }
+        outs
+    }
+
+    /// One input's intake: whether it was accepted; a refusal's stop into `outs`, an
+    /// undecodable message logged. In lockstep an accepted input starts the wait for the
+    /// command that must follow within a period.
+    fn intake(&mut self, input: Input, r: Intake, at: Arrival, outs: &mut Vec<Output>) -> bool {
+        match r {
+            Intake::Accepted => {
+                if self.lockstep && !matches!(input, Input::Goal) {
+                    self.undecided_since.get_or_insert(at.at);
+                }
+                true
+            }
+            Intake::Undecodable(e) => {
+                let c = self.control.counters();
+                let (topic, n) = match input {
+                    Input::Odometry => ("odometry", c.undecodable_odometry),
+                    Input::Goal => ("goal", c.undecodable_goals),
+                    Input::People => ("people", c.undecodable_people),
+                };
+                log_count(topic, n, &e);
+                false
+            }
+            Intake::Refused(reason) => {
+                outs.push(Output::stop(reason));
+                false
+            }
+        }
+    }
 }
 
 /// Undecodable input: logged at powers of two of its count (1, 2, 4, ...).
@@ -971,76 +994,125 @@ fn log_count(topic: &str, count: u64, error: &str) {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use proto::serve::{ActReply, ActRequest, GoalObs, HumanObs, RobotObs as RobotIn};
 
-    fn policy() -> ServedPolicy {
-        ServedPolicy::load(
-            &std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
-                .join("../models/fsrl-env1-invisible-s0.fsrlm"),
-            None,
-        )
-        .unwrap()
-    }
+    use std::sync::mpsc;
 
-    fn request(humans: usize) -> ActRequest {
-        ActRequest {
-            robot: RobotIn {
-                x_m: 0.0,
-                y_m: -4.0,
-                vx_mps: 0.0,
-                vy_mps: 0.0,
-                heading_rad: 1.5,
-            },
-            goal: GoalObs { x_m: 0.0, y_m: 4.0 },
-            humans: (0..humans)
-                .map(|i| HumanObs {
-                    x_m: 1.0 + i as f64,
-                    y_m: 0.0,
-                    vx_mps: -0.5,
-                    vy_mps: 0.0,
-                    radius_m: None,
-                    goal_x_m: None,
-                    goal_y_m: None,
-                    v_pref_mps: None,
-                    standing: None,
-                })
-                .collect(),
-            steps: 0,
+    use crate::msg::{Header, Quaternion, Time};
+    use crate::people::{person_with_tags, PersonObs};
+
+    fn header(t_s: f64) -> Header {
+        Header {
+            stamp: Time::from_secs_f64(t_s),
+            frame_id: "odom".into(),
         }
     }
 
-    fn ask(pol: &mut ServedPolicy, r: &ActRequest) -> ActReply {
-        answer(pol, &Limits::default(), 8, &r.encode())
+    /// `fsrl serve` of the shipped model in lockstep on the odometry's clock, never stale, on a
+    /// thread (its result joined at the end); its inbox; a robot peer receiving `cmd_vel`.
+    fn lockstep_server() -> (
+        std::thread::JoinHandle<Result<Summary, ServeError>>,
+        Inbox,
+        Session,
+        mpsc::Receiver<Twist>,
+    ) {
+        let endpoint = format!("tcp/127.0.0.1:{}", testkit::free_port());
+        let opts = ServeOptions {
+            name: "node-test".into(),
+            trigger: Trigger::Odometry,
+            clock: Clock::Odometry,
+            stale_periods: MAX_STALE_PERIODS,
+            zenoh: transport::ZenohConfig::peer(vec![endpoint.clone()], vec![]),
+            ..ServeOptions::new(
+                std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+                    .join("../models/fsrl-env1-invisible-s0.fsrlm"),
+            )
+        };
+        let inbox = Inbox::new();
+        let (ready_tx, ready) = mpsc::channel();
+        let server = {
+            let inbox = inbox.clone();
+            std::thread::spawn(move || {
+                run(&opts, inbox, move || {
+                    let _ = ready_tx.send(());
+                })
+            })
+        };
+        ready
+            .recv_timeout(Duration::from_secs(60))
+            .expect("fsrl serve is ready");
+        let cfg = transport::ZenohConfig::peer(vec![], vec![endpoint])
+            .to_zenoh(1 << 20)
+            .unwrap();
+        let robot = zenoh::open(cfg).wait().unwrap();
+        let (tx, cmd) = mpsc::channel();
+        robot
+            .declare_subscriber("cmd_vel")
+            .callback(move |s| {
+                let _ = tx.send(msg::decode::<Twist>(&s.payload().to_bytes()).unwrap());
+            })
+            .background()
+            .wait()
+            .unwrap();
+        (server, inbox, robot, cmd)
+    }
+
+    /// Steps the robot in lockstep (goal, people and odometry stamped alike) until a command
+    /// that moves it comes.
+    fn drive(robot: &Session, cmd: &mpsc::Receiver<Twist>) {
+        let deadline = Instant::now() + Duration::from_secs(20);
+        let mut t_s = 1000.0;
+        while Instant::now() < deadline {
+            t_s += 0.25;
+            let goal = PoseStamped {
+                header: header(1000.0),
+                pose: crate::msg::Pose {
+                    position: crate::msg::Point {
+                        x: 0.0,
+                        y: 4.0,
+                        z: 0.0,
+                    },
+                    ..Default::default()
+                },
+            };
+            let p = PersonObs::tracked(sim::Vec2::new(2.0, 0.0), sim::Vec2::new(-0.5, 0.0));
+            let people = People {
+                header: header(t_s),
+                people: vec![person_with_tags("a".into(), &p)],
+            };
+            let mut odom = Odometry {
+                header: header(t_s),
+                child_frame_id: "base_link".into(),
+                ..Odometry::default()
+            };
+            odom.pose.pose.position.y = -4.0;
+            odom.pose.pose.orientation = Quaternion::from_yaw(std::f64::consts::FRAC_PI_2);
+            for (key, bytes) in [
+                ("goal_pose", msg::encode(&goal)),
+                ("people", msg::encode(&people)),
+                ("odom", msg::encode(&odom)),
+            ] {
+                robot.put(key, bytes.unwrap()).wait().unwrap();
+            }
+            if let Ok(t) = cmd.recv_timeout(Duration::from_millis(100)) {
+                if t != Twist::ZERO {
+                    return;
+                }
+            }
+        }
+        panic!("no command that moves the robot");
     }
 
     #[test]
-    fn the_queryable_checks_its_fields() {
-        let mut pol = policy();
-        assert!(ask(&mut pol, &request(3)).ok);
-        let many = ask(&mut pol, &request(9));
-        assert!(
-            !many.ok && many.reason.contains("9 humans, at most 8"),
-            "{many:?}"
-        );
-        let mut far = request(3);
-        far.robot.x_m = 1e9;
-        let r = ask(&mut pol, &far);
-        assert!(!r.ok && r.reason.contains("farther than"), "{r:?}");
-        let mut fast = request(3);
-        fast.humans[1].vx_mps = 1e4;
-        assert!(!ask(&mut pol, &fast).ok);
-        // A step count past the time limit plans as the limit.
-        let mut late = request(3);
-        late.steps = pol.step_limit();
-        let at_limit = ask(&mut pol, &late);
-        late.steps = u32::MAX;
-        let beyond = ask(&mut pol, &late);
-        assert!(beyond.ok);
-        assert_eq!(
-            (beyond.action, beyond.value),
-            (at_limit.action, at_limit.value)
-        );
-        assert!(!answer(&mut pol, &Limits::default(), 8, b"\xc1").ok);
+    fn a_panic_in_the_loop_still_sends_a_last_zero_command() {
+        let (server, inbox, robot, cmd) = lockstep_server();
+        drive(&robot, &cmd);
+        while cmd.try_recv().is_ok() {}
+        // Nothing else sends a command now: lockstep, no input, never stale.
+        inbox.lock().panic = true;
+        inbox.shared.1.notify_all();
+        let last = cmd.recv_timeout(Duration::from_secs(5));
+        assert_eq!(last, Ok(Twist::ZERO), "no zero command after the panic");
+        assert!(server.join().is_err(), "the loop did not panic");
     }
 
     #[test]
@@ -1055,6 +1127,15 @@ mod tests {
         o.planning_breadth = Some(policy::lookahead::MAX_PLANNING_TOP_K + 2);
         o.threads = 0;
         let e = o.check().unwrap_err().to_string();
+        let mut breadth_alone = ServeOptions::new("model.fsrlm");
+        breadth_alone.planning_breadth = Some(8);
+        let b = breadth_alone.check().unwrap_err().to_string();
+        assert!(
+            b.contains("--planning-breadth 8 needs --planning-top-k"),
+            "{b}"
+        );
+        breadth_alone.planning_top_k = Some(3);
+        assert!(breadth_alone.check().is_ok());
         for flag in [
             "--stale-periods inf",
             "--period-s -0.25",

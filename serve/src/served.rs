@@ -108,6 +108,34 @@ impl Observation {
     }
 }
 
+impl Observation {
+    /// The most a decision can meet with `people` people (the start-up's timing of the
+    /// decision budget): the robot at the origin heading for a goal 4 m ahead, the people on a
+    /// grid 0.8 m apart from 2 m ahead, walking across its way, none close enough to collide
+    /// in one step (a collision ends a preview early).
+    pub fn crowd(people: usize) -> Observation {
+        let side = (people as f64).sqrt().ceil().max(1.0) as usize;
+        Observation {
+            robot: RobotObs {
+                position: Vec2::zeros(),
+                velocity: Vec2::zeros(),
+                heading_rad: std::f64::consts::FRAC_PI_2,
+            },
+            goal: Vec2::new(0.0, 4.0),
+            humans: (0..people)
+                .map(|i| {
+                    let (row, col) = ((i / side) as f64, (i % side) as f64);
+                    PersonObs::tracked(
+                        Vec2::new((col - side as f64 / 2.0) * 0.8, 2.0 + row * 0.8),
+                        Vec2::new(-0.5, 0.0),
+                    )
+                })
+                .collect(),
+            steps: 0,
+        }
+    }
+}
+
 /// A body-frame velocity command for one control period.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct Command {
