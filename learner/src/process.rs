@@ -6,23 +6,25 @@
 //! of what the learner has accepted; when the learner is busy training, actors wait instead of
 //! data being dropped.
 //!
-//! A run, in the order [`run`] goes through it:
+//! A run, in the order [`run`] goes through it (each phase a named function or module):
 //!
-//! 1. **restore** ([`restore`]): lock the run directory, load the last checkpoint (or start a
+//! 1. **restore** (`restore`): lock the run directory, load the last checkpoint (or start a
 //!    new run), cut the training log back to it;
-//! 2. **recover** ([`Learner::replay_wal`]): the episodes acknowledged after that checkpoint,
+//! 2. **recover** (`Learner::replay_wal`): the episodes acknowledged after that checkpoint,
 //!    from the write-ahead log, trained on again;
-//! 3. **warm start** ([`warm_start`]): imitation, unless the checkpoint is past it;
-//! 4. **train** ([`training::train`]): the RL phase, episodes taken and trained on as the
-//!    replay schedule says ([`schedule`]: fixed or adaptive), then the updates the adaptive
-//!    schedule still owes ([`schedule::Schedule::top_up`]);
-//! 5. **finish** ([`training::finish`]): final checkpoint, weights, `Finished`, and the final
-//!    figures ([`crate::record`]); then **linger** ([`training::linger`]) until the actors and
+//! 3. **warm start** (`warm_start`): imitation, unless the checkpoint is past it;
+//! 4. **train** (`training::train`): the RL phase, episodes taken and trained on as the replay
+//!    schedule says (`schedule`: fixed or adaptive, one trait), then the updates the adaptive
+//!    schedule still owes (`Schedule::top_up`);
+//! 5. **finish** (`training::finish`): final checkpoint, weights, `Finished`, and the final
+//!    figures ([`crate::record`]); then **linger** (`training::linger`) until the actors and
 //!    evaluators have left.
 //!
-//! A stop (Ctrl-C) in the warm start or in training checkpoints and ends with
-//! [`LearnerExit::Stopped`]. The learner's state and its handlers (accepting, acknowledging,
-//! publishing) are [`Learner`]'s; who is alive is [`alive`]'s.
+//! A stop (Ctrl-C) ends the run with [`LearnerExit::Stopped`]: in training, the top-up
+//! included, after a checkpoint and the figures of that moment; in the warm start at once (it is
+//! done again on the next start). The learner's state and its handlers (accepting,
+//! acknowledging, publishing) are `Learner`'s; who is alive is `alive`'s (one capped tracker
+//! for every phase).
 
 mod alive;
 mod schedule;
