@@ -2,7 +2,7 @@
 //!
 //! This is a port of RVO2's `Agent::computeNewVelocity` for agents without obstacles, written on
 //! nalgebra in **float32** with RVO2's order of operations, so that one step from a given state
-//! reproduces RVO2's velocities (checked against `shared/data/orca_ref` to 1e-4 m/s). Neighbour
+//! reproduces RVO2's velocities (checked against `testdata/orca_ref` to 1e-4 m/s). Neighbour
 //! selection keeps the `max_neighbors` closest agents with squared centre distance strictly below
 //! `neighbor_dist²`, sorted by distance, as RVO2's k-d tree query does.
 //!
