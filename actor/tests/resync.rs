@@ -5,7 +5,6 @@
 //! learner expects, and the run goes on. Nothing is trained twice: the learner's accepted
 //! episodes are exactly its RL episodes.
 
-use std::net::TcpListener;
 use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
@@ -20,7 +19,12 @@ const PATIENCE: Duration = Duration::from_secs(120);
 
 /// (RL episodes, actor 0's `accepted_below`) of the checkpoint in `run_dir`, if there is one.
 fn checkpointed(run_dir: &Path) -> Option<(u64, u64)> {
-    let c = learner::checkpoint::load(&learner::store::checkpoint_path(run_dir)).ok()?;
+    counts(&learner::store::checkpoint_path(run_dir))
+}
+
+/// (RL episodes, actor 0's `accepted_below`) of the checkpoint file `path`, if it is one.
+fn counts(path: &Path) -> Option<(u64, u64)> {
+    let c = learner::checkpoint::load(path).ok()?;
     Some((
         c.core.counters().rl_episodes,
         c.run.accepted_below.get(&0).copied().unwrap_or(0),
@@ -47,10 +51,7 @@ impl Drop for StopOnDrop {
 #[test]
 fn an_older_checkpoint_restored_under_a_running_actor_resynchronises_it() {
     let run = RunId::new(format!("rs{}", std::process::id())).unwrap();
-    let port = TcpListener::bind("127.0.0.1:0")
-        .and_then(|l| l.local_addr())
-        .map(|a| a.port())
-        .expect("free port");
+    let port = testkit::free_port();
     let hub = format!("tcp/127.0.0.1:{port}");
     // The actor listens; each learner (and the monitor) connects to it.
     let open = |sender: SenderId, listen: Vec<String>, connect: Vec<String>| {
@@ -98,25 +99,43 @@ fn an_older_checkpoint_restored_under_a_running_actor_resynchronises_it() {
         let _stop_actor = StopOnDrop(Arc::clone(&actor_stop));
         let actor = s.spawn(|| actor::run(&actor_t, &spec, 0, &actor_stop));
 
-        // The first learner trains; its checkpoint at 2 RL episodes is kept aside.
+        // The first learner trains; its first checkpoint past RL episode 2 is kept aside: copied,
+        // then read (the copy is what is checked), and taken whatever its count. Before, the
+        // test read the run directory's checkpoint, then copied it (the learner's next
+        // checkpoint could come in between: 4 episodes kept as "2"), and took only the one at
+        // exactly 2 (a poll that came after the learner had moved on waited for ever).
         let stop1 = Arc::new(AtomicBool::new(false));
         let first = learner_in(&stop1);
         let stop_first = StopOnDrop(stop1);
-        wait_for("the first learner's checkpoint at 2 RL episodes", || {
-            if checkpointed(&run_dir).is_some_and(|(rl, _)| rl == 2) && !older.exists() {
-                let _ = std::fs::copy(learner::store::checkpoint_path(&run_dir), &older);
-            }
-            older.exists() && checkpointed(&run_dir).is_some_and(|(rl, _)| rl >= 6)
-        });
-        let (rl, acked) = learner::checkpoint::load(&older)
-            .map(|c| {
-                (
-                    c.core.counters().rl_episodes,
-                    c.run.accepted_below.get(&0).copied().unwrap_or(0),
-                )
-            })
-            .unwrap();
-        assert_eq!((rl, acked), (2, 2), "the older checkpoint");
+        let candidate = dir.path().join("candidate.ckpt");
+        let mut kept = None;
+        wait_for(
+            "the first learner to train 4 RL episodes past a kept checkpoint",
+            || {
+                if kept.is_none()
+                    && std::fs::copy(learner::store::checkpoint_path(&run_dir), &candidate).is_ok()
+                {
+                    if let Some((rl, acked)) = counts(&candidate).filter(|(rl, _)| *rl >= 2) {
+                        std::fs::rename(&candidate, &older).unwrap();
+                        kept = Some((rl, acked));
+                    }
+                }
+                kept.is_some_and(|(at, _)| {
+                    checkpointed(&run_dir).is_some_and(|(rl, _)| rl >= at + 4)
+                })
+            },
+        );
+        let (rl, acked) = kept.unwrap();
+        let went_back_to = rl;
+        assert_eq!(
+            counts(&older),
+            Some((rl, acked)),
+            "the older checkpoint as checked"
+        );
+        assert_eq!(
+            rl, acked,
+            "the older checkpoint: RL episodes against accepted"
+        );
         drop(stop_first);
         let exit = first
             .join()
@@ -178,9 +197,16 @@ fn an_older_checkpoint_restored_under_a_running_actor_resynchronises_it() {
             trained, expected,
             "the training log's RL episodes as (episode, actor, actor's episode)"
         );
+        // The actor dropped the episodes the first learner acknowledged. The last ones that
+        // learner accepted may be in its final checkpoint before their acknowledgement reached
+        // the actor (at most its in-flight allowance, which the actor keeps and sends again,
+        // numbered from where the restored learner expects): under load "lost 3, the learner
+        // went back 6 → 2" (issue 52; the bound was `ahead - 2`).
+        let back = ahead - went_back_to;
+        let kept_unacked = opts.in_flight_per_actor;
         assert!(
-            lost >= (ahead - 2) as f64,
-            "lost {lost}, the learner went back {ahead} → 2"
+            (back.saturating_sub(kept_unacked) as f64..=back as f64).contains(&lost),
+            "lost {lost}, the learner went back {ahead} → {went_back_to}, the actor may keep {kept_unacked}"
         );
         actor_stop.store(true, Ordering::SeqCst);
         actor.join().unwrap().expect("the actor stops cleanly");

@@ -4,7 +4,6 @@
 //! learner header is evaluated once but silences nothing: the real learner's next due
 //! snapshot is evaluated, and the run's end is noticed (the process returns, no hang).
 
-use std::net::TcpListener;
 use std::path::Path;
 use std::sync::atomic::AtomicBool;
 use std::time::{Duration, Instant};
@@ -15,16 +14,10 @@ use policy::wire::weights_message;
 use policy::{NetConfig, ValueNet};
 use proto::{Control, RunId, RunPhase, SenderId};
 use sim::config::{EnvKind, Setting};
+use testkit::free_port;
 use transport::{Transport, TransportConfig, ZenohConfig};
 
 const PATIENCE: Duration = Duration::from_secs(120);
-
-fn free_port() -> u16 {
-    TcpListener::bind("127.0.0.1:0")
-        .and_then(|l| l.local_addr())
-        .map(|a| a.port())
-        .expect("free port")
-}
 
 fn open(run: &RunId, sender: SenderId, listen: &str, connect: &[String]) -> Transport {
     let mut c = TransportConfig::new(run.clone(), sender);

@@ -4,7 +4,6 @@
 //! them, never the round before; a round of updates whose target refresh is not finite
 //! re-synchronises the target network or fails, never repeats for ever.
 
-use std::net::TcpListener;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
@@ -14,16 +13,10 @@ use learner::LearnerCore;
 use policy::method::{Method, ReplayRatio, RunSpec, TrainConfig};
 use policy::rollout::{rollout, Behaviour};
 use proto::{keys, Control, RunId, RunPhase, SenderId};
+use testkit::free_port;
 use transport::{Transport, TransportConfig, ZenohConfig};
 
 const PATIENCE: Duration = Duration::from_secs(120);
-
-fn free_port() -> u16 {
-    TcpListener::bind("127.0.0.1:0")
-        .and_then(|l| l.local_addr())
-        .map(|a| a.port())
-        .expect("free port")
-}
 
 /// A transport of `run` as `sender`, listening on `port` (`listen`) or connecting to it.
 fn transport(run: &RunId, sender: SenderId, port: u16, listen: bool) -> Transport {

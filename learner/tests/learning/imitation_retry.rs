@@ -4,7 +4,6 @@
 //! disk would; the process goes on, writes the checkpoint once the disk has room again, and
 //! stops cleanly.
 
-use std::net::TcpListener;
 use std::path::Path;
 use std::sync::atomic::{AtomicBool, AtomicU32, Ordering};
 use std::sync::Arc;
@@ -21,10 +20,7 @@ const FULL_DISK_ATTEMPTS: u32 = 2;
 
 #[test]
 fn the_checkpoint_after_imitation_is_retried_on_a_full_disk() {
-    let port = TcpListener::bind("127.0.0.1:0")
-        .and_then(|l| l.local_addr())
-        .map(|a| a.port())
-        .expect("free port");
+    let port = testkit::free_port();
     let run = RunId::new(format!("ir{}", std::process::id())).unwrap();
     let mut cfg = TransportConfig::new(run.clone(), SenderId::learner());
     cfg.zenoh = ZenohConfig::peer(vec![format!("tcp/127.0.0.1:{port}")], Vec::new());
