@@ -44,6 +44,12 @@ pub fn alive_event(run: &RunId, sender: SenderId, up: bool) -> String {
     .to_string()
 }
 
+/// The page's own trouble with a run (`detail`, empty once it is over): its liveliness
+/// cannot be watched (the router refused its keys, say). The run's other events go on.
+pub fn watch_error_event(run: &RunId, detail: &str) -> String {
+    serde_json::json!({"k": "w", "r": run.as_str(), "detail": detail}).to_string()
+}
+
 fn role(r: Role) -> &'static str {
     match r {
         Role::Learner => "learner",
@@ -59,7 +65,9 @@ struct State {
     head: Vec<Arc<str>>,
     validations: VecDeque<Arc<str>>,
     others: VecDeque<Arc<str>>,
-    pages: Vec<SyncSender<Arc<str>>>,
+    /// Each open page's id and its channel.
+    pages: Vec<(u64, SyncSender<Arc<str>>)>,
+    next_page: u64,
 }
 
 /// The events of the runs shown, and the pages listening.
@@ -97,7 +105,7 @@ impl Hub {
             kept.pop_front();
         }
         kept.push_back(event.clone());
-        st.pages.retain(|p| {
+        st.pages.retain(|(_, p)| {
             !matches!(
                 p.try_send(event.clone()),
                 Err(TrySendError::Full(_) | TrySendError::Disconnected(_))
@@ -106,11 +114,13 @@ impl Hub {
     }
 
     /// A new page: what was kept so far (in order of arrival within each kind, validations
-    /// first), and a receiver of what comes next.
-    pub fn subscribe(&self) -> (Vec<Arc<str>>, Receiver<Arc<str>>) {
+    /// first), and a receiver of what comes next (the page is forgotten when it is dropped).
+    pub fn subscribe(&self) -> (Vec<Arc<str>>, Page) {
         let mut st = self.lock();
         let (tx, rx) = sync_channel(PAGE_BACKLOG);
-        st.pages.push(tx);
+        let id = st.next_page;
+        st.next_page += 1;
+        st.pages.push((id, tx));
         let history = st
             .head
             .iter()
@@ -118,12 +128,50 @@ impl Hub {
             .chain(&st.others)
             .cloned()
             .collect();
-        (history, rx)
+        let page = Page {
+            rx,
+            id,
+            hub: self.clone(),
+        };
+        (history, page)
+    }
+
+    /// Drops the page of this id ([`Page::id`]): its receiver ends at once.
+    pub fn forget(&self, page: u64) {
+        self.lock().pages.retain(|(id, _)| *id != page);
     }
 
     /// Pages listening now.
     pub fn pages(&self) -> usize {
         self.lock().pages.len()
+    }
+}
+
+/// One page's receiver of the hub's events. Dropped, it leaves the hub at once (not at the
+/// next event: a hub with nothing new to say would otherwise keep every closed page's channel).
+pub struct Page {
+    rx: Receiver<Arc<str>>,
+    id: u64,
+    hub: Hub,
+}
+
+impl std::ops::Deref for Page {
+    type Target = Receiver<Arc<str>>;
+    fn deref(&self) -> &Self::Target {
+        &self.rx
+    }
+}
+
+impl Page {
+    /// Its id, for [`Hub::forget`].
+    pub fn id(&self) -> u64 {
+        self.id
+    }
+}
+
+impl Drop for Page {
+    fn drop(&mut self) {
+        self.hub.forget(self.id);
     }
 }
 
@@ -146,8 +194,9 @@ mod tests {
             next.contains("\"s\":\"actor-1\"") && next.contains("\"up\":false"),
             "{next}"
         );
-        // A page gone is forgotten at the next event.
+        // A page gone is forgotten at once.
         drop(rx);
+        assert_eq!(hub.pages(), 0);
         hub.publish(alive_event(&r, learner, true), false);
         assert_eq!(hub.pages(), 0);
     }

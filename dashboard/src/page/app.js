@@ -24,6 +24,7 @@ function newRun(id) {
     procs: new Map(),      // sender -> {role, up, state, error, ...}
     target: 0,
     phase: "–",
+    watchError: "",        // this page cannot watch the run's liveliness: why ("" once it can)
   };
 }
 
@@ -111,6 +112,7 @@ function onEvent(ev) {
         p.leftAt = ev.up ? 0 : Date.now();
         break;
       }
+      case "w": R.watchError = ev.detail; break;
     }
   }
   S.updated = Date.now();
@@ -245,6 +247,12 @@ function draw() {
   set("lag", last && last.v.policy_lag_mean !== undefined ? last.v.policy_lag_mean.toFixed(2) : "–");
   set("ratio", last && last.v.updates_per_episode !== undefined ? last.v.updates_per_episode.toFixed(1) : "–");
   set("last-success", val.length ? `${val[val.length - 1][1].success.toFixed(2)} @ ${val[val.length - 1][0]}` : "–");
+
+  // Runs whose liveliness this page cannot watch (their other events still come).
+  const notes = [...S.runs.values()].filter(X => X.watchError).map(X => `${X.id}: ${X.watchError}`);
+  const notices = document.getElementById("notices");
+  notices.hidden = notes.length === 0;
+  notices.textContent = notes.join("\n");
 
   const cell = (tr, text, cls) => { const td = document.createElement("td"); td.textContent = text; if (cls) td.className = cls; tr.appendChild(td); return td; };
   // The runs (a page of every run): one row each, the selected one highlighted; a click selects.
