@@ -1103,6 +1103,30 @@ mod tests {
     }
 
     #[test]
+    fn a_flood_on_one_input_does_not_hold_back_the_others() {
+        let inbox = Inbox::new();
+        let far = Instant::now() + Duration::from_secs(60);
+        let now = Arrival::now();
+        inbox.put(Input::Goal, b"goal".to_vec(), now);
+        inbox.put(Input::People, b"people".to_vec(), now);
+        let mut seen = (false, false);
+        // Odometry is there again each time the loop looks.
+        for _ in 0..10 {
+            inbox.put(Input::Odometry, b"odom".to_vec(), now);
+            let Event::Inputs(i) = inbox.next(far) else {
+                panic!("not inputs");
+            };
+            assert!(i.odometry.is_some());
+            seen.0 |= i.goal.is_some();
+            seen.1 |= i.people.is_some();
+        }
+        assert_eq!(seen, (true, true), "(goal, people) never taken");
+        // A deadline passed comes before any input.
+        inbox.put(Input::Odometry, b"odom".to_vec(), now);
+        assert!(matches!(inbox.next(Instant::now()), Event::Deadline));
+    }
+
+    #[test]
     fn a_panic_in_the_loop_still_sends_a_last_zero_command() {
         let (server, inbox, robot, cmd) = lockstep_server();
         drive(&robot, &cmd);
