@@ -16,7 +16,6 @@
 //! `cargo bench -p transport --bench transport -- report` runs the report alone.
 
 use std::hint::black_box;
-use std::net::TcpListener;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc;
 use std::sync::{Arc, Barrier};
@@ -42,10 +41,7 @@ struct Net {
 impl Net {
     fn new(plane: DataPlane) -> Self {
         let id: u64 = rand::random();
-        let port = TcpListener::bind("127.0.0.1:0")
-            .and_then(|l| l.local_addr())
-            .map(|a| a.port())
-            .expect("free port");
+        let port = testkit::free_port();
         Self {
             run: RunId::new(format!("bench{id:016x}")).expect("run id"),
             plane,

@@ -1,10 +1,10 @@
 //! Test networks: N transports of one run on loopback, for either backend.
 
-use std::net::TcpListener;
 use std::path::Path;
 use std::time::Duration;
 
 use proto::{RunId, SenderId};
+use testkit::free_port;
 use transport::{DataPlane, Transport, TransportConfig, ZenohConfig};
 
 /// Generous bound for anything that should happen "at once" on a loaded 2-core machine.
@@ -23,13 +23,6 @@ pub struct Net {
     pub prefix: String,
     pub endpoint: String,
     hub_opened: bool,
-}
-
-fn free_port() -> u16 {
-    TcpListener::bind("127.0.0.1:0")
-        .and_then(|l| l.local_addr())
-        .map(|a| a.port())
-        .expect("free port")
 }
 
 impl Net {

@@ -164,7 +164,6 @@ fn latest_value_for_late_joiner(b: Backend) {
     wp.publish(2, &fixtures::sarl_weights(2)).expect("publish");
 
     let actor = net.open(SenderId::actor(0));
-    let t0 = Instant::now();
     let ws = actor
         .latest_subscriber(&keys::weights(&net.run))
         .expect("weights subscriber");
@@ -172,14 +171,11 @@ fn latest_value_for_late_joiner(b: Backend) {
         .next(WAIT)
         .expect("next")
         .expect("current weights at once");
-    let waited = t0.elapsed();
+    // At once: nothing republishes here, so the value came from the late joiner's query (no
+    // bound on the time: a loaded 2-core machine stretches any).
     assert_eq!(current.body.version, 2);
     assert_eq!(current.header.policy_version, 2);
     assert_eq!(current.body, fixtures::sarl_weights(2));
-    assert!(
-        waited < Duration::from_secs(2),
-        "late joiner waited {waited:?}"
-    );
     assert_eq!(
         ws.latest().expect("latest").map(|m| m.body.version),
         Some(2)
@@ -401,9 +397,7 @@ fn liveliness_join_and_leave(b: Backend) {
     let evaluator = net.open(SenderId::evaluator(0));
     let eval_token = evaluator.declare_alive().expect("token");
     expect_event(&watcher, AliveEvent::Joined(evaluator.member()));
-    let members = learner
-        .alive_members(Duration::from_secs(2))
-        .expect("snapshot");
+    let members = learner.alive_members(WAIT).expect("snapshot");
     for m in [learner.member(), actor.member(), evaluator.member()] {
         assert!(members.contains(&m), "{m} missing from {members:?}");
     }
