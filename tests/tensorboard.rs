@@ -2,31 +2,24 @@
 //! (its `EventAccumulator`, installed into .venv/ by tools/test.sh): every tag of the issue, at
 //! the steps and with the values of the run's `metrics.jsonl` (and, for the distributed run's
 //! live-only values, of the learner's messages in `processes.jsonl`); a single-process run
-//! killed past its last checkpoint and resumed, with no step twice; and `fsrl watch
-//! --tensorboard` on a live distributed run.
+//! killed past its last checkpoint and resumed, with no step twice and every point at its log
+//! line's time; `fsrl watch --tensorboard` on a live distributed run; and the files' names
+//! (issue 52): a rebuild's temporary file is none TensorBoard reads, and event files sort in the
+//! order they were started.
 
 use std::collections::BTreeMap;
 use std::io::{BufRead, BufReader};
 use std::path::Path;
-use std::process::{Child, Command, Stdio};
+use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 use serde_json::Value;
+use testkit::Reaped;
 
 type Points = BTreeMap<String, Vec<(i64, f64)>>;
 
 fn fsrl() -> Command {
     Command::new(env!("CARGO_BIN_EXE_fsrl"))
-}
-
-/// Kills and reaps a child on every way out of a test.
-struct Reaped(Child);
-
-impl Drop for Reaped {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
 }
 
 const SHORT: [&str; 10] = [
@@ -55,12 +48,21 @@ fn config(dir: &Path) -> std::path::PathBuf {
 
 /// Every scalar of the event files in `dir`, as TensorBoard's own reader sees them.
 fn tensorboard_scalars(dir: &Path) -> Points {
+    tensorboard_points(dir)
+        .into_iter()
+        .map(|(tag, p)| (tag, p.into_iter().map(|(s, v, _)| (s, v)).collect()))
+        .collect()
+}
+
+/// Every scalar of the event files in `dir` as (step, value, wall time), as TensorBoard's own
+/// reader sees them.
+fn tensorboard_points(dir: &Path) -> BTreeMap<String, Vec<(i64, f64, f64)>> {
     let script = r#"
 import json, sys
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 ea = EventAccumulator(sys.argv[1], size_guidance={"scalars": 0})
 ea.Reload()
-print(json.dumps({t: [[e.step, e.value] for e in ea.Scalars(t)] for t in ea.Tags()["scalars"]}))
+print(json.dumps({t: [[e.step, e.value, e.wall_time] for e in ea.Scalars(t)] for t in ea.Tags()["scalars"]}))
 "#;
     let o = Command::new("python3")
         .arg("-c")
@@ -74,9 +76,7 @@ print(json.dumps({t: [[e.step, e.value] for e in ea.Scalars(t)] for t in ea.Tags
         dir.display(),
         String::from_utf8_lossy(&o.stderr)
     );
-    let v: BTreeMap<String, Vec<(i64, f64)>> =
-        serde_json::from_slice(&o.stdout).expect("the reader's JSON");
-    v
+    serde_json::from_slice(&o.stdout).expect("the reader's JSON")
 }
 
 fn lines(path: &Path) -> Vec<Value> {
@@ -327,6 +327,126 @@ fn a_single_process_run_killed_and_resumed_shows_one_curve() {
         1,
         "the rebuilt directory holds one file"
     );
+    // Every point at its log line's time (issue 52: the rebuild gave the killed run's points
+    // the times they were polled at, and the resumed run's its own): TensorBoard's wall-time
+    // axis is the run's clock, `wall_s`.
+    let walls: Vec<f64> = log
+        .iter()
+        .filter(|v| v["phase"] == "rl")
+        .map(|v| v["wall_s"].as_f64().unwrap())
+        .collect();
+    let times: Vec<f64> = tensorboard_points(&out.join("tb"))["losses/td_loss"]
+        .iter()
+        .map(|p| p.2)
+        .collect();
+    assert_eq!(times.len(), walls.len());
+    for (i, (t, w)) in times.iter().zip(&walls).enumerate() {
+        let (dt, dw) = (t - times[0], w - walls[0]);
+        assert!(
+            (dt - dw).abs() < 1e-3,
+            "RL episode {i}: {dt:.4} s after the first in TensorBoard, {dw:.4} s in the log"
+        );
+    }
+}
+
+/// A `tb/` directory as TensorBoard's reader sees it: `x` at steps 1..=3 (value 1) in a file of
+/// process 99999, then a rebuild of process 100000 in the same second (a session start, steps
+/// 1..=2 at value 2), and a rebuild's temporary file a crash left (steps 1..=5 at value 9).
+/// TensorBoard reads the files in name order and reads every name with `tfevents` in it:
+/// issue 52, the pid was not padded (100000's file sorted first) and the temporary file's name
+/// held `tfevents`.
+#[test]
+fn tensorboard_reads_the_files_in_start_order_and_no_temporary_file() {
+    use tboard::writer::{self, EventWriter};
+    let dir = tempfile::tempdir().unwrap();
+    let tb = &dir.path().join("tb");
+    std::fs::create_dir_all(tb).unwrap();
+    let x = |step, value| tboard::Scalar {
+        tag: "x".into(),
+        step,
+        value,
+        wall_time: 1.7e9 + step as f64,
+    };
+    let mut first =
+        EventWriter::create(&tb.join(writer::file_name(1_700_000_000, "h", 99_999, 0))).unwrap();
+    for s in 1..=3 {
+        first.scalar(&x(s, 1.0));
+    }
+    first.flush().unwrap();
+    let mut rebuilt =
+        EventWriter::create(&tb.join(writer::file_name(1_700_000_000, "h", 100_000, 0))).unwrap();
+    rebuilt.session_start(0);
+    for s in 1..=2 {
+        rebuilt.scalar(&x(s, 2.0));
+    }
+    rebuilt.flush().unwrap();
+    // The temporary file alone: nothing for TensorBoard.
+    let alone = dir.path().join("alone");
+    std::fs::create_dir_all(&alone).unwrap();
+    for d in [&alone, tb] {
+        let mut tmp = EventWriter::create(&d.join(writer::rebuild_temp_name())).unwrap();
+        for s in 1..=5 {
+            tmp.scalar(&x(s, 9.0));
+        }
+        tmp.flush().unwrap();
+    }
+    assert!(
+        tensorboard_scalars(&alone).is_empty(),
+        "TensorBoard reads a rebuild's temporary file"
+    );
+    assert_eq!(
+        tensorboard_scalars(tb)["x"],
+        vec![(1, 2.0), (2, 2.0)],
+        "{:?}",
+        std::fs::read_dir(tb)
+            .unwrap()
+            .map(|e| e.unwrap().file_name())
+            .collect::<Vec<_>>()
+    );
+}
+
+/// A rebuild's temporary files a crash left in `tb/` (this version's name and the
+/// `.events.out.tfevents.*.tmp` of earlier ones) are removed when the board opens: TensorBoard
+/// sees the log's points once, and nothing stays behind (issue 52: they were never removed).
+#[test]
+fn a_board_removes_the_temporary_files_a_crashed_rebuild_left() {
+    use tboard::writer::{self, EventWriter};
+    let dir = tempfile::tempdir().unwrap();
+    let run = dir.path();
+    let tb = run.join("tb");
+    std::fs::create_dir_all(&tb).unwrap();
+    std::fs::write(
+        run.join("metrics.jsonl"),
+        "{\"phase\":\"rl\",\"episode\":0,\"loss\":0.5,\"wall_s\":1.0}\n",
+    )
+    .unwrap();
+    let left = [
+        writer::rebuild_temp_name(),
+        format!(".{}.tmp", writer::new_file_name()),
+    ];
+    for name in &left {
+        let mut w = EventWriter::create(&tb.join(name)).unwrap();
+        w.scalar(&tboard::Scalar {
+            tag: "losses/td_loss".into(),
+            step: 7,
+            value: 9.0,
+            wall_time: 1.7e9,
+        });
+        w.flush().unwrap();
+    }
+    let single = tboard::Mode::SingleProcess {
+        updates_per_episode: 20.0,
+    };
+    drop(tboard::RunBoard::open(run, single).unwrap());
+    let names: Vec<String> = std::fs::read_dir(&tb)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    assert!(
+        names.iter().all(|n| writer::is_event_file(n)),
+        "left behind: {names:?}"
+    );
+    assert_eq!(tensorboard_scalars(&tb)["losses/td_loss"], vec![(1, 0.5)]);
 }
 
 #[test]

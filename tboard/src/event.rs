@@ -6,7 +6,9 @@
 //!
 //! The fields written, from `tensorflow/core/util/event.proto` and `summary.proto`:
 //! `Event { double wall_time = 1; int64 step = 2; string file_version = 3; Summary summary = 5;
-//! SessionLog session_log = 6; }`, `Summary { repeated Value value = 1; }`,
+//! SessionLog session_log = 7; }` (not 6, the deprecated `LogMessage`: a session start written
+//! there was read as a log message, and TensorBoard forgot nothing), `Summary { repeated Value
+//! value = 1; }`,
 //! `Summary.Value { string tag = 1; float simple_value = 2; }`,
 //! `SessionLog { SessionStatus status = 1; }` with `START = 1`. Reading skips every other field.
 
@@ -92,7 +94,7 @@ pub fn session_start(wall_time: f64, step: i64) -> Vec<u8> {
     key(&mut log, 1, 0);
     varint(&mut log, 1);
     let mut out = head(wall_time, step);
-    bytes_field(&mut out, 6, &log);
+    bytes_field(&mut out, 7, &log);
     out
 }
 
@@ -221,7 +223,7 @@ pub fn decode(data: &[u8]) -> Option<Event> {
                     }
                 }
             }
-            (6, Field::Bytes(log)) => {
+            (7, Field::Bytes(log)) => {
                 for (n, f) in (Reader { b: log }).fields()? {
                     if let (1, Field::Varint(1)) = (n, f) {
                         e.session_start = true;
@@ -263,7 +265,11 @@ mod tests {
         let e = decode(&file_version(7.0)).unwrap();
         assert_eq!(e.file_version.as_deref(), Some(FILE_VERSION));
         assert!(!e.session_start);
-        let e = decode(&session_start(8.0, 0)).unwrap();
+        // Event field 7 (session_log), a SessionLog of status START: protobuf's own bytes.
+        let start = session_start(8.0, 0);
+        let want = [&[0x09][..], &8.0f64.to_le_bytes(), &[0x3a, 2, 0x08, 1]].concat();
+        assert_eq!(start, want);
+        let e = decode(&start).unwrap();
         assert!(e.session_start && e.values.is_empty());
         assert_eq!(e.wall_time, 8.0);
     }
