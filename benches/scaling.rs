@@ -11,7 +11,6 @@
 #[path = "../tests/shm_support/mod.rs"]
 mod shm_support;
 
-use std::net::TcpListener;
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
@@ -44,11 +43,7 @@ impl Drop for Procs {
 }
 
 fn episodes_per_s(bin: &str, actors: u32) -> f64 {
-    let port = TcpListener::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port();
+    let port = testkit::free_port();
     let ep = format!("tcp/127.0.0.1:{port}");
     let dir = tempfile::tempdir().unwrap();
     let id = format!("scale{actors}-{}", std::process::id());

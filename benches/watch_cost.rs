@@ -49,12 +49,7 @@ struct Arm {
     times_s: Vec<f64>,
 }
 
-fn free_port() -> u16 {
-    std::net::TcpListener::bind("127.0.0.1:0")
-        .and_then(|l| l.local_addr())
-        .map(|a| a.port())
-        .expect("a free port")
-}
+use testkit::free_port;
 
 /// Reads the page's event stream as a browser would, reconnecting until `done`.
 fn read_page(port: u16, done: Arc<AtomicBool>) -> std::thread::JoinHandle<u64> {

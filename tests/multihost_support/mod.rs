@@ -551,11 +551,7 @@ impl LoopbackRouter {
     /// Makes the test CA in `dir` and starts the router (`fsrl` is the binary).
     pub fn start(dir: &Path, run: &str, fsrl: &Path) -> Self {
         make_secrets(dir, &[]).unwrap();
-        let port = std::net::TcpListener::bind("127.0.0.1:0")
-            .unwrap()
-            .local_addr()
-            .unwrap()
-            .port();
+        let port = testkit::free_port();
         let endpoint = format!("tls/127.0.0.1:{port}");
         let mut r = Self {
             dir: dir.to_path_buf(),
