@@ -500,3 +500,66 @@ fn a_default_distributed_run_does_not_resume_in_one_process() {
         "the run's config was written"
     );
 }
+
+/// A tiny distributed run (one actor, no evaluator, over zenoh) with `--dashboard PORT`.
+fn tiny_with_page(out: &Path, port: u16) -> std::process::Output {
+    fsrl()
+        .args([
+            "train",
+            "--method",
+            "sarl",
+            "--il-episodes",
+            "4",
+            "--il-epochs",
+            "1",
+        ])
+        .args([
+            "--rl-episodes",
+            "2",
+            "--eval-episodes",
+            "2",
+            "--actors",
+            "1",
+        ])
+        .args(["--no-evaluator", "--transport", "zenoh", "--no-tensorboard"])
+        .args(["--dashboard", &port.to_string(), "--out"])
+        .arg(out)
+        .output()
+        .unwrap()
+}
+
+/// Issue 52: `--dashboard 0` serves the page on a free port and says which, not port 0.
+#[test]
+fn the_live_page_on_port_0_is_announced_on_the_port_it_serves() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("run");
+    let o = tiny_with_page(&out, 0);
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{stderr}");
+    let port = stderr
+        .lines()
+        .find_map(|l| l.strip_prefix("live page: http://127.0.0.1:"))
+        .and_then(|p| p.trim_end_matches('/').parse::<u16>().ok());
+    assert!(
+        port.is_some_and(|p| p != 0),
+        "the page's real port:\n{stderr}"
+    );
+}
+
+/// Issue 52: a page that cannot be served (its port in use) is an error the user sees, before
+/// anything starts; it used to be written to logs/dashboard.log alone while the run went on.
+#[test]
+fn a_live_page_port_in_use_is_refused_before_anything_starts() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("run");
+    let port = testkit::free_port();
+    let _taken = std::net::TcpListener::bind(("127.0.0.1", port)).unwrap();
+    let o = tiny_with_page(&out, port);
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success(), "{stderr}");
+    assert!(
+        stderr.contains(&format!("cannot serve the live page on 127.0.0.1:{port}")),
+        "{stderr}"
+    );
+    assert!(!out.join("logs").exists(), "processes were started");
+}
