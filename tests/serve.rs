@@ -451,6 +451,15 @@ fn every_bad_number_on_the_command_line_is_refused_in_one_line_before_anything_s
         (&["--decision-budget-s", "nan"], "--decision-budget-s NaN"),
         (&["--max-people", "0"], "--max-people 0"),
         (&["--max-people", "100000"], "--max-people 100000"),
+        // As training refuses train.planning_breadth without train.planning_top_k.
+        (
+            &["--planning-breadth", "8"],
+            "--planning-breadth 8 needs --planning-top-k",
+        ),
+        (
+            &["--planning-breadth", "8", "--planning-top-k", "0"],
+            "--planning-breadth 8 needs --planning-top-k",
+        ),
     ];
     let dir = tempfile::tempdir().unwrap();
     let missing = dir.path().join("no-such-model.fsrlm");
@@ -480,6 +489,29 @@ fn every_bad_number_on_the_command_line_is_refused_in_one_line_before_anything_s
             "{args:?}: the model was opened"
         );
     }
+}
+
+/// The flags allow a decision far over its budget (depth-2 planning over every first step with
+/// 512 people: seconds): `fsrl serve` times one at start-up and refuses to start, saying what
+/// it measured and what to change, after a zero command.
+#[test]
+fn a_decision_over_its_budget_at_the_most_people_refuses_to_start() {
+    let out = Command::new(env!("CARGO_BIN_EXE_fsrl"))
+        .arg("serve")
+        .arg(model_path())
+        .args(["--listen", &format!("tcp/127.0.0.1:{}", free_port())])
+        .args(["--max-people", "512", "--planning-top-k", "81"])
+        .stdin(Stdio::null())
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "it started:\n{stderr}");
+    assert!(out.stdout.is_empty(), "it printed ready");
+    assert!(
+        stderr.contains("a decision with 512 people (--max-people) and planning top-k 81")
+            && stderr.contains("over the budget of 125.0 ms"),
+        "{stderr}"
+    );
 }
 
 #[test]

@@ -6,12 +6,15 @@
 //!   control periods of the last odometry, with the reason "odometry is stale", and the
 //!   server's resident memory (`VmRSS`) stay under 100 MB throughout; the queries beyond the
 //!   queue are refused and counted;
-//! - a `cmd_vel` subscriber that never reads (its link's buffers full, its own queries' replies
-//!   piling up): the commands to the robot keep their period and the stop still goes out in
-//!   time.
+//! - a `cmd_vel` subscriber that never reads (its link's buffers full, as its socket's queues
+//!   show, its own queries' replies piling up): the commands to the robot keep their period and
+//!   the stop still goes out in time;
+//! - two askers that never read their replies, behind `fsrl router` with the robot and the
+//!   server (one link carries all their traffic to the server): the server still reads the
+//!   robot's inputs (no stale stop while they come) and decides the stop in time.
 //!
-//! Both run the server with `--stale-periods 1`: a stop one period after the last odometry at
-//! the earliest, so "within two periods" leaves one period for the loop under the flood.
+//! All run the server with the default staleness ([`serve::control::DEFAULT_STALE_PERIODS`]):
+//! the promise is a zero command within two periods of the last input with the default flags.
 //! Run alone: `cargo test --release --test serve_flood`.
 
 mod net_support;
@@ -23,7 +26,9 @@ use std::time::{Duration, Instant};
 
 use net_support::free_port;
 use serve::msg::Twist;
-use serve_support::{goal, moving, now_s, odometry, people, rss_mb, session, zero, Robot, Served};
+use serve_support::{
+    goal, moving, now_s, odometry, people, rss_mb, session, tcp_queues, zero, Robot, Served,
+};
 use zenoh::Wait;
 
 /// The shipped model's control period.
@@ -140,7 +145,7 @@ fn field(line: &str, name: &str) -> u64 {
 fn under_a_query_and_people_flood_the_stop_goes_out_within_two_periods_and_memory_stays_bounded() {
     let port = free_port();
     let endpoint = format!("tcp/127.0.0.1:{port}");
-    let mut serve = Served::shipped(port, &["--name", "flood", "--stale-periods", "1"]);
+    let mut serve = Served::shipped(port, &["--name", "flood"]);
     let robot = Robot::connect(&endpoint);
     robot.put("goal_pose", goal("odom", now_s()));
     robot.until("driving before the flood", || robot.fresh(), moving);
@@ -253,6 +258,29 @@ fn under_a_query_and_people_flood_the_stop_goes_out_within_two_periods_and_memor
     assert!(answered > 0 && refused > 0, "{summary}");
 }
 
+/// Bytes in a socket queue that say a link is congested (the stuck peers' receive buffers are
+/// 4 KiB, the server's send buffer as small).
+const CONGESTED_BYTES: u64 = 1024;
+
+/// Samples the TCP queues on `port` every 20 ms until `stop`: the most bytes a peer's socket
+/// to `port` held unread, and the most a socket of `port` held unsent.
+fn congestion_watch(port: u16, stop: Arc<AtomicBool>) -> std::thread::JoinHandle<(u64, u64)> {
+    std::thread::spawn(move || {
+        let (mut unread, mut unsent) = (0, 0);
+        while !stop.load(Ordering::Relaxed) {
+            for q in tcp_queues(port) {
+                if q.remote_port == port {
+                    unread = unread.max(q.rx_bytes);
+                } else {
+                    unsent = unsent.max(q.tx_bytes);
+                }
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        (unread, unsent)
+    })
+}
+
 /// A session that subscribes to `cmd_vel` and never reads it: its callback blocks until the
 /// returned sender is dropped, so its link stops reading and its socket buffers (small, by the
 /// endpoint's `so_rcvbuf`) fill; it also asks queries whose replies pile up on that link.
@@ -291,15 +319,7 @@ fn a_cmd_vel_subscriber_that_never_reads_cannot_stall_the_loop() {
     let mut serve = Served::start(
         std::path::Path::new(&serve_support::model_path()),
         &format!("{endpoint}#so_sndbuf=4096"),
-        &[
-            "--name",
-            "stuck",
-            "--trigger",
-            "odometry",
-            "--use-sim-time",
-            "--stale-periods",
-            "1",
-        ],
+        &["--name", "stuck", "--trigger", "odometry", "--use-sim-time"],
     );
     let robot = Robot::connect(&endpoint);
     let mut t_s = 1000.0;
@@ -331,7 +351,10 @@ fn a_cmd_vel_subscriber_that_never_reads_cannot_stall_the_loop() {
         })
     };
 
-    // For 5 s, step as fast as the commands come; the longest wait for one.
+    // For 5 s, step as fast as the commands come; the longest wait for one. Meanwhile the
+    // socket queues of the server's port: what the stuck peer has not read, what the server
+    // could not send.
+    let congestion = congestion_watch(port, stop.clone());
     robot.drain();
     let watch_from = Instant::now();
     let (mut steps, mut max_gap) = (0u64, Duration::ZERO);
@@ -352,6 +375,7 @@ fn a_cmd_vel_subscriber_that_never_reads_cannot_stall_the_loop() {
     stop.store(true, Ordering::Relaxed);
     let asked = asking.join().unwrap();
     let max_rss = rss.join().unwrap();
+    let (unread, unsent) = congestion.join().unwrap();
     drop(release);
     drop(stuck_sub);
 
@@ -359,7 +383,14 @@ fn a_cmd_vel_subscriber_that_never_reads_cannot_stall_the_loop() {
     eprintln!(
         "stuck subscriber: {steps} lockstep steps in 5 s, the longest wait for a command \
          {max_gap:?}; zero command {latency:?} after the last input; {asked} queries from the \
-         stuck peer; max VmRSS {max_rss:.1} MB"
+         stuck peer; max VmRSS {max_rss:.1} MB; at most {unread} bytes unread by a peer, \
+         {unsent} unsent by the server"
+    );
+    // The link really was congested: the stuck peer's socket full of what it did not read, the
+    // server's send queue to it holding what the peer's window would not take.
+    assert!(
+        unread >= CONGESTED_BYTES && unsent >= CONGESTED_BYTES,
+        "no congestion: {unread} bytes unread, {unsent} unsent"
     );
     assert!(
         max_gap < 2 * PERIOD,
@@ -377,4 +408,147 @@ fn a_cmd_vel_subscriber_that_never_reads_cannot_stall_the_loop() {
     let status = serve.terminate();
     assert!(status.success(), "{status:?}");
     drop(stuck);
+}
+
+/// An asker behind the router at `endpoint` that never reads: its replies' callback blocks
+/// until the returned sender is dropped, so its link stops reading (its socket buffer 4 KiB);
+/// it asks `per_s` queries a second until `stop`.
+fn stuck_asker(
+    endpoint: &str,
+    name: &str,
+    per_s: u64,
+    stop: Arc<AtomicBool>,
+) -> (std::thread::JoinHandle<u64>, mpsc::Sender<()>) {
+    let c = transport::ZenohConfig::client(format!("{endpoint}#so_rcvbuf=4096"));
+    let s = zenoh::open(c.to_zenoh(1 << 20).unwrap()).wait().unwrap();
+    let (release, gate) = mpsc::channel::<()>();
+    let gate = Arc::new(std::sync::Mutex::new(gate));
+    let key = proto::keys::serve_act(name).unwrap();
+    let asking = std::thread::spawn(move || {
+        let payload = request();
+        let n = at_rate(per_s, &stop, || {
+            let gate = gate.clone();
+            let _ = s
+                .get(&key)
+                .payload(payload.clone())
+                .timeout(Duration::from_secs(10))
+                .callback(move |_| {
+                    // Never returns while the test runs.
+                    let _ = gate.lock().map(|g| g.recv());
+                })
+                .wait();
+        });
+        drop(s);
+        n
+    });
+    (asking, release)
+}
+
+/// A client of the router at `endpoint` (no listening, multicast scouting off).
+fn router_client(endpoint: &str) -> zenoh::Session {
+    let c = transport::ZenohConfig::client(endpoint.to_string());
+    zenoh::open(c.to_zenoh(8 << 20).unwrap()).wait().unwrap()
+}
+
+#[test]
+fn askers_that_never_read_behind_a_router_cannot_hold_back_the_robots_inputs() {
+    // `fsrl router` on loopback, plain TCP, no access control (the test's own), with small
+    // send buffers, so that a link that does not read fills within the test.
+    let dir = tempfile::tempdir().unwrap();
+    let router_port = free_port();
+    let router = format!("tcp/127.0.0.1:{router_port}");
+    let config = dir.path().join("router.json5");
+    std::fs::write(
+        &config,
+        format!(
+            "{{ mode: \"router\", listen: {{ endpoints: [\"{router}#so_sndbuf=4096\"] }}, \
+             scouting: {{ multicast: {{ enabled: false }} }} }}"
+        ),
+    )
+    .unwrap();
+    let _router = net_support::Reaped(
+        std::process::Command::new(env!("CARGO_BIN_EXE_fsrl"))
+            .args(["router", "--config"])
+            .arg(&config)
+            .stdin(std::process::Stdio::null())
+            .stdout(std::process::Stdio::null())
+            .stderr(std::process::Stdio::null())
+            .spawn()
+            .unwrap(),
+    );
+    let deadline = Instant::now() + Duration::from_secs(30);
+    while std::net::TcpStream::connect(("127.0.0.1", router_port)).is_err() {
+        assert!(Instant::now() < deadline, "fsrl router did not listen");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    // The server connects to the router only (small send buffers on that link).
+    let mut serve = Served::shipped(
+        free_port(),
+        &[
+            "--name",
+            "askers",
+            "--connect",
+            &format!("{router}#so_sndbuf=4096"),
+        ],
+    );
+    let robot = {
+        let session = router_client(&router);
+        Robot::with_session(session)
+    };
+    robot.put("goal_pose", goal("odom", now_s()));
+    robot.until("driving before the askers", || robot.fresh(), moving);
+
+    let stop = Arc::new(AtomicBool::new(false));
+    let odometry_stops = Arc::new(AtomicBool::new(false));
+    let (last_tx, last_rx) = mpsc::channel();
+    let inputs = robot_inputs(
+        robot.session.clone(),
+        odometry_stops.clone(),
+        stop.clone(),
+        last_tx,
+    );
+    let congestion = congestion_watch(router_port, stop.clone());
+    let askers: Vec<_> = (0..2)
+        .map(|_| stuck_asker(&router, "askers", 1_000, stop.clone()))
+        .collect();
+    // 4 s of both askers stuck while the robot's inputs come fresh: no stale stop.
+    serve.skip_log();
+    std::thread::sleep(Duration::from_secs(4));
+    let mut stale = Vec::new();
+    while let Ok(line) = serve.log.try_recv() {
+        if line.contains("is stale") || line.contains("people data stopped") {
+            stale.push(line);
+        }
+    }
+    // Then the odometry stops: the server decides the stop in time (it logs it: the router,
+    // stuck forwarding replies to the askers, may hold the command itself).
+    odometry_stops.store(true, Ordering::Relaxed);
+    let last = last_rx.recv_timeout(Duration::from_secs(5)).unwrap();
+    let stop_reason = serve.next_stop_reason(Duration::from_secs(5));
+    let decided = Instant::now() - last;
+    stop.store(true, Ordering::Relaxed);
+    inputs.join().unwrap();
+    let (unread, unsent) = congestion.join().unwrap();
+    let mut asked = 0;
+    for (asking, release) in askers {
+        asked += asking.join().unwrap();
+        drop(release);
+    }
+    eprintln!(
+        "stuck askers: {asked} queries; at most {unread} bytes unread by a client of the \
+         router, {unsent} unsent by it; the stop ({stop_reason}) decided {decided:?} after the \
+         last odometry; stale stops while the inputs came: {stale:?}"
+    );
+    assert!(
+        unread >= CONGESTED_BYTES && unsent >= CONGESTED_BYTES,
+        "no congestion: {unread} bytes unread, {unsent} unsent"
+    );
+    assert!(stale.is_empty(), "the inputs were held back: {stale:?}");
+    assert!(stop_reason.contains("odometry is stale"), "{stop_reason}");
+    assert!(
+        decided < 2 * PERIOD,
+        "the stop was decided {decided:?} after the last odometry"
+    );
+    let status = serve.terminate();
+    assert!(status.success(), "{status:?}");
 }

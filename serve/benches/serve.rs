@@ -91,16 +91,8 @@ fn decisions(people: usize, planning: Option<(usize, usize)>, threads: usize) ->
     (p50, p99)
 }
 
-fn free_port() -> u16 {
-    std::net::TcpListener::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port()
-}
-
 fn input_to_command(people: usize) {
-    let port = free_port();
+    let port = testkit::free_port();
     let opts = serve::ServeOptions {
         name: "bench".into(),
         trigger: serve::Trigger::Odometry,

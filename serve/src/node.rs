@@ -245,9 +245,6 @@ fn zerr(what: &'static str) -> impl Fn(zenoh::Error) -> ServeError {
 }
 
 /// What the loop reacts to, in the order it takes them ([`Inbox::next`]): a stop request,
-/// the deadline (the control period's tick or the instant an input turns stale), then the
-
-/// What the loop reacts to, in the order it takes them ([`Inbox::next`]): a stop request,
 /// the deadline (the control period's tick, the instant an input turns stale, or in lockstep
 /// a period without a command), then every input that came, all at once.
 pub enum Event {

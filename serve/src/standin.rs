@@ -188,79 +188,192 @@ fn wait_until(
     Ok(())
 }
 
-/// Plays `opts.seeds` and returns each episode's outcome, calling `on_episode` as each ends.
+/// Plays `opts.seeds` and returns each episode's outcome, calling `on_episode` as each ends:
+/// connect (topics or the queryable) and wait for `fsrl serve`, then play each seed.
 pub fn run(
     opts: &RobotOptions,
     reference: Option<Reference<'_>>,
     mut on_episode: impl FnMut(&EpisodeResult),
 ) -> Result<Vec<EpisodeResult>, ServeError> {
-    let mut env = Env::new(opts.sim.clone(), opts.setting, opts.seeds.start)
-        .map_err(|e| ServeError::Config(e.to_string()))?;
-    let dt = opts.sim.dt_s;
+    let mut env = Env::new(opts.sim.clone(), opts.setting, opts.seeds.start).map_err(config)?;
     let deadline = Instant::now() + opts.wait_for_server;
     let mut reference_policy = reference
         .as_ref()
         .map(|r| ServedPolicy::from_model(r.model.clone(), Some(opts.setting.robot_visible)))
         .transpose()?;
-
-    // Either topics or a session for queries.
-    let (mut links, session, act_key) = match &opts.link {
+    let mut link = match &opts.link {
         Link::Topics {
             style,
             topics,
-            people: people_format,
-        } => {
-            topics.check().map_err(ServeError::Config)?;
-            let mut node = RosNode::open(&opts.zenoh, style.clone(), "fsrl_robot")?;
-            let odom = node.publisher::<Odometry>(&topics.odom)?;
-            let people = match people_format {
-                PeopleFormat::People => node.publisher::<People>(&topics.people)?,
-                PeopleFormat::Spencer => node.publisher::<TrackedPersons>(&topics.people)?,
-                PeopleFormat::Pedsim => node.publisher::<AgentStates>(&topics.people)?,
-            };
-            let goal = node.publisher::<PoseStamped>(&topics.goal)?;
-            let (tx, cmd) = mpsc::channel();
-            let sub = node.subscribe::<Twist>(&topics.cmd_vel, move |b| {
-                let _ = tx.send(b);
-            })?;
-            // `fsrl serve` is there once it subscribes to all three inputs.
-            wait_until(deadline, "fsrl serve's subscriptions", || {
-                odom.matched() && people.matched() && goal.matched()
-            })?;
-            (
-                Some(Links {
-                    node,
-                    odom,
-                    people,
-                    people_format: *people_format,
-                    goal,
-                    cmd,
-                    _sub: sub,
-                }),
-                None,
-                String::new(),
-            )
-        }
+            people,
+        } => Connected::Topics(Box::new(Links::open(
+            opts, style, topics, *people, deadline,
+        )?)),
         Link::Queryable { name } => {
-            let key =
-                proto::keys::serve_act(name).map_err(|e| ServeError::Config(e.to_string()))?;
-            let cfg = opts
-                .zenoh
-                .to_zenoh(msg::MAX_MESSAGE_BYTES)
-                .map_err(|e| ServeError::Config(e.to_string()))?;
-            let session = zenoh::open(cfg)
-                .wait()
-                .map_err(|e| ServeError::Zenoh(format!("open session: {e}")))?;
-            (None, Some(session), key)
+            let asker = Asker::open(opts, name)?;
+            asker.wait_for_server(&mut env, opts.seeds.start, deadline)?;
+            Connected::Asker(asker)
         }
     };
-    let ask = |session: &zenoh::Session,
-               req: &proto::serve::ActRequest|
-     -> Result<Option<proto::serve::ActReply>, ServeError> {
-        let replies = session
-            .get(act_key.as_str())
+    let mut t_s = 1000.0;
+    let mut results = Vec::new();
+    for seed in opts.seeds.clone() {
+        let disagreements = play(
+            &mut env,
+            seed,
+            &mut t_s,
+            &mut link,
+            reference_policy.as_mut(),
+            opts.reply_timeout,
+        )?;
+        let r = EpisodeResult {
+            seed,
+            outcome: env.outcome(),
+            steps: env.steps(),
+            disagreements: reference.as_ref().map(|_| disagreements),
+        };
+        on_episode(&r);
+        results.push(r);
+    }
+    if let Connected::Topics(l) = link {
+        drop(l.node);
+    }
+    Ok(results)
+}
+
+fn config(e: impl std::fmt::Display) -> ServeError {
+    ServeError::Config(e.to_string())
+}
+
+/// The stand-in's link to `fsrl serve`, connected.
+enum Connected {
+    Topics(Box<Links>),
+    Asker(Asker),
+}
+
+impl Links {
+    /// Publishers of the inputs and a subscriber of the commands; `fsrl serve` is there once
+    /// it subscribes to all three inputs.
+    fn open(
+        opts: &RobotOptions,
+        style: &Ros2Style,
+        topics: &Topics,
+        people_format: PeopleFormat,
+        deadline: Instant,
+    ) -> Result<Self, ServeError> {
+        topics.check().map_err(ServeError::Config)?;
+        let mut node = RosNode::open(&opts.zenoh, style.clone(), "fsrl_robot")?;
+        let odom = node.publisher::<Odometry>(&topics.odom)?;
+        let people = match people_format {
+            PeopleFormat::People => node.publisher::<People>(&topics.people)?,
+            PeopleFormat::Spencer => node.publisher::<TrackedPersons>(&topics.people)?,
+            PeopleFormat::Pedsim => node.publisher::<AgentStates>(&topics.people)?,
+        };
+        let goal = node.publisher::<PoseStamped>(&topics.goal)?;
+        let (tx, cmd) = mpsc::channel();
+        let sub = node.subscribe::<Twist>(&topics.cmd_vel, move |b| {
+            let _ = tx.send(b);
+        })?;
+        wait_until(deadline, "fsrl serve's subscriptions", || {
+            odom.matched() && people.matched() && goal.matched()
+        })?;
+        Ok(Links {
+            node,
+            odom,
+            people,
+            people_format,
+            goal,
+            cmd,
+            _sub: sub,
+        })
+    }
+
+    /// The episode's goal, stamped `t_s`.
+    fn put_goal(&mut self, env: &Env, t_s: f64) -> Result<(), ServeError> {
+        let g = env.robot().goal;
+        self.goal.put(&PoseStamped {
+            header: header(t_s),
+            pose: Pose {
+                position: Point {
+                    x: g.x,
+                    y: g.y,
+                    z: 0.0,
+                },
+                orientation: Quaternion::default(),
+            },
+        })
+    }
+
+    /// Publishes this step's people (`people_bytes`) and odometry stamped `t`, and waits for
+    /// the command; the action it stands for.
+    fn step(
+        &mut self,
+        env: &Env,
+        people_bytes: Vec<u8>,
+        t: f64,
+        timeout: Duration,
+        seed: u64,
+    ) -> Result<usize, ServeError> {
+        while self.cmd.try_recv().is_ok() {}
+        self.people.put_bytes(people_bytes)?;
+        self.odom.put(&odometry_of(env, t))?;
+        let bytes = self.cmd.recv_timeout(timeout).map_err(|_| {
+            ServeError::Zenoh(format!(
+                "no command within {timeout:?} (seed {seed}, step {})",
+                env.steps()
+            ))
+        })?;
+        let tw: Twist =
+            msg::decode(&bytes).map_err(|e| ServeError::Zenoh(format!("cmd_vel: {e}")))?;
+        let c = Command {
+            linear_x_mps: tw.linear.x,
+            linear_y_mps: tw.linear.y,
+            angular_z_radps: tw.angular.z,
+        };
+        let dt = env.config().dt_s;
+        Ok(ServedPolicy::action_of(
+            env.action_set(),
+            dt,
+            env.robot().heading_rad,
+            &c,
+        ))
+    }
+}
+
+/// A session asking the queryable `fsrl/serve/<name>/act`.
+struct Asker {
+    session: zenoh::Session,
+    key: String,
+    timeout: Duration,
+}
+
+impl Asker {
+    fn open(opts: &RobotOptions, name: &str) -> Result<Self, ServeError> {
+        let key = proto::keys::serve_act(name).map_err(config)?;
+        let cfg = opts
+            .zenoh
+            .to_zenoh(msg::MAX_MESSAGE_BYTES)
+            .map_err(config)?;
+        let session = zenoh::open(cfg)
+            .wait()
+            .map_err(|e| ServeError::Zenoh(format!("open session: {e}")))?;
+        Ok(Self {
+            session,
+            key,
+            timeout: opts.reply_timeout,
+        })
+    }
+
+    /// The first reply to `req`, or `None` within the timeout.
+    fn ask(
+        &self,
+        req: &proto::serve::ActRequest,
+    ) -> Result<Option<proto::serve::ActReply>, ServeError> {
+        let replies = self
+            .session
+            .get(self.key.as_str())
             .payload(req.encode())
-            .timeout(opts.reply_timeout)
+            .timeout(self.timeout)
             .wait()
             .map_err(|e| ServeError::Zenoh(format!("query: {e}")))?;
         while let Ok(reply) = replies.recv() {
@@ -271,112 +384,83 @@ pub fn run(
             }
         }
         Ok(None)
-    };
-    if let Some(s) = &session {
-        // The server is there once a query is answered.
-        env.reset(opts.seeds.start)
-            .map_err(|e| ServeError::Config(e.to_string()))?;
-        let probe = request_of(&env);
-        let mut answered = false;
-        wait_until(deadline, "fsrl serve's queryable", || {
-            answered = matches!(ask(s, &probe), Ok(Some(_)));
-            answered
-        })?;
     }
 
-    let mut t_s = 1000.0;
-    let mut results = Vec::new();
-    for seed in opts.seeds.clone() {
-        env.reset(seed)
-            .map_err(|e| ServeError::Config(e.to_string()))?;
-        let mut disagreements = 0;
-        if let Some(l) = &mut links {
-            let g = env.robot().goal;
-            l.goal.put(&PoseStamped {
-                header: header(t_s),
-                pose: Pose {
-                    position: Point {
-                        x: g.x,
-                        y: g.y,
-                        z: 0.0,
-                    },
-                    orientation: Quaternion::default(),
-                },
-            })?;
-        }
-        let t0 = t_s;
-        while !env.is_done() {
-            let t = t0 + env.steps() as f64 * dt;
-            // The people message of this step: published below, read back by the reference.
-            let people_bytes = links
-                .as_ref()
-                .map(|l| people_of(&env, t, l.people_format))
-                .transpose()?;
-            let want = match &mut reference_policy {
-                Some(p) => {
-                    let mut obs = Observation::of_env(&env);
-                    if let (Some(l), Some(b)) = (&links, &people_bytes) {
-                        obs.humans = people::decode(l.people_format, b)
-                            .map_err(|e| ServeError::Config(e.to_string()))?
-                            .people;
-                    }
-                    Some(p.decide(&obs)?.action)
-                }
-                None => None,
-            };
-            let action = match (&mut links, &session) {
-                (Some(l), _) => {
-                    while l.cmd.try_recv().is_ok() {}
-                    if let Some(b) = people_bytes {
-                        l.people.put_bytes(b)?;
-                    }
-                    l.odom.put(&odometry_of(&env, t))?;
-                    let bytes = l.cmd.recv_timeout(opts.reply_timeout).map_err(|_| {
-                        ServeError::Zenoh(format!(
-                            "no command within {:?} (seed {seed}, step {})",
-                            opts.reply_timeout,
-                            env.steps()
-                        ))
-                    })?;
-                    let tw: Twist = msg::decode(&bytes)
-                        .map_err(|e| ServeError::Zenoh(format!("cmd_vel: {e}")))?;
-                    let c = Command {
-                        linear_x_mps: tw.linear.x,
-                        linear_y_mps: tw.linear.y,
-                        angular_z_radps: tw.angular.z,
-                    };
-                    ServedPolicy::action_of(env.action_set(), dt, env.robot().heading_rad, &c)
-                }
-                (None, Some(s)) => {
-                    let reply = ask(s, &request_of(&env))?.ok_or_else(|| {
-                        ServeError::Zenoh(format!("no reply (seed {seed}, step {})", env.steps()))
-                    })?;
-                    if !reply.ok {
-                        return Err(ServeError::Zenoh(format!(
-                            "the policy refused (seed {seed}): {}",
-                            reply.reason
-                        )));
-                    }
-                    reply.action as usize
-                }
-                _ => unreachable!("one link is set"),
-            };
-            if want.is_some_and(|w| w != action) {
-                disagreements += 1;
-            }
-            env.step(action)
-                .map_err(|e| ServeError::Config(e.to_string()))?;
-        }
-        t_s = t0 + env.steps() as f64 * dt + 1.0;
-        let r = EpisodeResult {
-            seed,
-            outcome: env.outcome(),
-            steps: env.steps(),
-            disagreements: reference.as_ref().map(|_| disagreements),
-        };
-        on_episode(&r);
-        results.push(r);
+    /// The server is there once a query (seed `seed`'s first state) is answered.
+    fn wait_for_server(
+        &self,
+        env: &mut Env,
+        seed: u64,
+        deadline: Instant,
+    ) -> Result<(), ServeError> {
+        env.reset(seed).map_err(config)?;
+        let probe = request_of(env);
+        wait_until(deadline, "fsrl serve's queryable", || {
+            matches!(self.ask(&probe), Ok(Some(_)))
+        })
     }
-    drop(links.map(|l| l.node));
-    Ok(results)
+
+    /// The action the queryable gives for `env`'s state.
+    fn step(&self, env: &Env, seed: u64) -> Result<usize, ServeError> {
+        let reply = self.ask(&request_of(env))?.ok_or_else(|| {
+            ServeError::Zenoh(format!("no reply (seed {seed}, step {})", env.steps()))
+        })?;
+        if !reply.ok {
+            return Err(ServeError::Zenoh(format!(
+                "the policy refused (seed {seed}): {}",
+                reply.reason
+            )));
+        }
+        Ok(reply.action as usize)
+    }
+}
+
+/// Plays seed `seed` from stamp `t_s` (moved on past the episode, plus 1 s); the steps whose
+/// command was not the reference's decision.
+fn play(
+    env: &mut Env,
+    seed: u64,
+    t_s: &mut f64,
+    link: &mut Connected,
+    mut reference: Option<&mut ServedPolicy>,
+    timeout: Duration,
+) -> Result<u32, ServeError> {
+    env.reset(seed).map_err(config)?;
+    let dt = env.config().dt_s;
+    if let Connected::Topics(l) = link {
+        l.put_goal(env, *t_s)?;
+    }
+    let t0 = *t_s;
+    let mut disagreements = 0;
+    while !env.is_done() {
+        let t = t0 + env.steps() as f64 * dt;
+        // The people message of this step: published below, read back by the reference.
+        let people_bytes = match link {
+            Connected::Topics(l) => Some(people_of(env, t, l.people_format)?),
+            Connected::Asker(_) => None,
+        };
+        let want = match reference.as_deref_mut() {
+            Some(p) => {
+                let mut obs = Observation::of_env(env);
+                if let (Connected::Topics(l), Some(b)) = (&*link, &people_bytes) {
+                    obs.humans = people::decode(l.people_format, b).map_err(config)?.people;
+                }
+                Some(p.decide(&obs)?.action)
+            }
+            None => None,
+        };
+        let action = match link {
+            Connected::Topics(l) => {
+                let b = people_bytes.unwrap_or_default();
+                l.step(env, b, t, timeout, seed)?
+            }
+            Connected::Asker(a) => a.step(env, seed)?,
+        };
+        if want.is_some_and(|w| w != action) {
+            disagreements += 1;
+        }
+        env.step(action).map_err(config)?;
+    }
+    *t_s = t0 + env.steps() as f64 * dt + 1.0;
+    Ok(disagreements)
 }

@@ -61,6 +61,14 @@ fn odometry(t_s: f64) -> Vec<u8> {
     msg::encode(&o).unwrap()
 }
 
+/// A peer of the server at `endpoint`.
+fn session(endpoint: &str) -> Session {
+    let cfg = transport::ZenohConfig::peer(vec![], vec![endpoint.to_string()])
+        .to_zenoh(1 << 20)
+        .unwrap();
+    zenoh::open(cfg).wait().unwrap()
+}
+
 fn moving(t: &Twist) -> bool {
     *t != Twist::ZERO
 }
@@ -71,6 +79,7 @@ struct Lockstep {
     server: Option<std::thread::JoinHandle<serve::node::Summary>>,
     stop: serve::Stopper,
     robot: Session,
+    endpoint: String,
     cmd: mpsc::Receiver<(Instant, Twist)>,
 }
 
@@ -100,10 +109,7 @@ impl Lockstep {
         ready
             .recv_timeout(Duration::from_secs(60))
             .expect("serve::run is ready");
-        let cfg = transport::ZenohConfig::peer(vec![], vec![endpoint])
-            .to_zenoh(1 << 20)
-            .unwrap();
-        let robot = zenoh::open(cfg).wait().unwrap();
+        let robot = session(&endpoint);
         let (tx, cmd) = mpsc::channel();
         robot
             .declare_subscriber("cmd_vel")
@@ -119,6 +125,7 @@ impl Lockstep {
             server: Some(server),
             stop,
             robot,
+            endpoint,
             cmd,
         }
     }
@@ -203,16 +210,21 @@ fn inputs_never_stamped_alike_give_a_zero_command_within_two_periods() {
 fn an_odometry_flood_does_not_starve_the_goal() {
     let served = Lockstep::start("flood");
     let t_s = served.drive(1000.0);
-    // The people of this stamp stay; odometry of the same stamp comes as fast as it can be
-    // put, each one a decision.
+    // From a peer of its own, odometry of this stamp as fast as it can be put, each one a
+    // decision, and the people of the same stamp again every 50 ms (kept fresh).
     let flooding = Arc::new(AtomicBool::new(true));
     let flood = {
-        let (robot, flooding) = (served.robot.clone(), flooding.clone());
+        let (flooder, flooding) = (session(&served.endpoint), flooding.clone());
         std::thread::spawn(move || {
-            let publisher = robot.declare_publisher("odom").wait().unwrap();
+            let publisher = flooder.declare_publisher("odom").wait().unwrap();
             let bytes = odometry(t_s);
             let mut n = 0u64;
+            let mut people_at = Instant::now();
             while flooding.load(Ordering::Relaxed) {
+                if people_at.elapsed() > Duration::from_millis(50) {
+                    flooder.put("people", people(t_s)).wait().unwrap();
+                    people_at = Instant::now();
+                }
                 publisher.put(bytes.clone()).wait().unwrap();
                 n += 1;
             }

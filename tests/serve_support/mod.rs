@@ -211,7 +211,11 @@ pub struct Robot {
 
 impl Robot {
     pub fn connect(endpoint: &str) -> Self {
-        let session = session(endpoint);
+        Self::with_session(session(endpoint))
+    }
+
+    /// A robot on `session` (a router's client, say).
+    pub fn with_session(session: zenoh::Session) -> Self {
         let (tx, cmd) = mpsc::channel();
         let sub = session
             .declare_subscriber("cmd_vel")
@@ -267,4 +271,39 @@ pub fn moving(t: &Twist) -> bool {
 
 pub fn zero(t: &Twist) -> bool {
     *t == Twist::ZERO
+}
+
+/// One TCP socket on this machine from `/proc/net/tcp`: its ports and the bytes in its send
+/// queue (sent, not acknowledged: the peer's window is full) and its receive queue (received,
+/// not read by its process).
+#[derive(Debug, Clone, Copy)]
+pub struct TcpQueues {
+    pub local_port: u16,
+    pub remote_port: u16,
+    pub tx_bytes: u64,
+    pub rx_bytes: u64,
+}
+
+/// Every IPv4 TCP socket with `port` at either end.
+pub fn tcp_queues(port: u16) -> Vec<TcpQueues> {
+    let text = std::fs::read_to_string("/proc/net/tcp").unwrap_or_default();
+    let port_of = |addr: &str| {
+        addr.split(':')
+            .nth(1)
+            .and_then(|p| u16::from_str_radix(p, 16).ok())
+    };
+    text.lines()
+        .skip(1)
+        .filter_map(|l| {
+            let f: Vec<&str> = l.split_whitespace().collect();
+            let (tx, rx) = f.get(4)?.split_once(':')?;
+            Some(TcpQueues {
+                local_port: port_of(f.get(1)?)?,
+                remote_port: port_of(f.get(2)?)?,
+                tx_bytes: u64::from_str_radix(tx, 16).ok()?,
+                rx_bytes: u64::from_str_radix(rx, 16).ok()?,
+            })
+        })
+        .filter(|q| q.local_port == port || q.remote_port == port)
+        .collect()
 }
