@@ -129,8 +129,8 @@ fn use_final_figures(
     out: &Path,
     last: &mut std::collections::BTreeMap<String, proto::Metrics>,
 ) -> anyhow::Result<()> {
-    let _ = (out, last);
-    Ok(())
+    learner::record::use_final_figures(out, last)
+        .context("the learner's final figures (the realised replay ratio) are missing")
 }
 
 /// What to launch.
