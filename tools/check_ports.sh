@@ -13,7 +13,6 @@ cd "${1:-$(dirname "$0")/..}"
 # child at once): not test support. A path here must still exist (a stale exception fails).
 exceptions=(
   dashboard/src/http.rs # its unit test serves the page on the listener it bound itself
-  launch/src/local.rs   # the local run's learner port when 7447 is taken
 )
 
 addr='(127\.0\.0\.1|localhost|0\.0\.0\.0|\[?::1?\]?)'

@@ -33,13 +33,31 @@ fn plane_name(p: DataPlane) -> &'static str {
     }
 }
 
-/// zenoh's usual port when it is free, else any free loopback port.
+/// zenoh's usual port when it is free, else a free loopback port below the kernel's ephemeral
+/// range; never one this process already handed to another run. Two runs launched at the same
+/// moment from one process (tests do) both found 7447 free before either learner had bound
+/// it; and a port from `bind(0)` is an ephemeral one, which any outgoing connection may take
+/// as its source port before the learner binds it.
 fn learner_port() -> anyhow::Result<u16> {
-    if TcpListener::bind("127.0.0.1:7447").is_ok() {
-        return Ok(7447);
+    use std::sync::Mutex;
+    static HANDED_OUT: Mutex<Vec<u16>> = Mutex::new(Vec::new());
+    let mut handed = HANDED_OUT.lock().unwrap_or_else(|e| e.into_inner());
+    let low: u32 = 10_000;
+    let high = std::fs::read_to_string("/proc/sys/net/ipv4/ip_local_port_range")
+        .ok()
+        .and_then(|s| s.split_whitespace().next()?.parse::<u32>().ok())
+        .unwrap_or(32_768)
+        .clamp(low + 1000, 65_535);
+    let offset = std::process::id().wrapping_mul(7919) % (high - low);
+    let candidates = std::iter::once(7447)
+        .chain((0..high - low).map(|i| (low + (offset + i) % (high - low)) as u16));
+    for port in candidates {
+        if !handed.contains(&port) && TcpListener::bind(("127.0.0.1", port)).is_ok() {
+            handed.push(port);
+            return Ok(port);
+        }
     }
-    let l = TcpListener::bind("127.0.0.1:0").context("cannot find a free loopback port")?;
-    Ok(l.local_addr()?.port())
+    bail!("no free TCP port on 127.0.0.1 for the learner (tried 7447 and {low}..{high})")
 }
 
 struct Children {
@@ -722,6 +740,24 @@ fn final_report(run: &mut Prepared, mut w: Watched, started: Instant) -> anyhow:
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Two runs launched at once from one process never get the same learner port, and none
+    /// is an ephemeral port (the kernel's `bind(0)` range).
+    #[test]
+    fn runs_launched_together_get_distinct_learner_ports_below_the_ephemeral_range() {
+        let low = std::fs::read_to_string("/proc/sys/net/ipv4/ip_local_port_range")
+            .ok()
+            .and_then(|s| s.split_whitespace().next()?.parse::<u16>().ok())
+            .unwrap_or(32_768);
+        let ports: Vec<u16> = (0..3).map(|_| learner_port().unwrap()).collect();
+        assert!(
+            ports[0] != ports[1] && ports[1] != ports[2] && ports[0] != ports[2],
+            "{ports:?}"
+        );
+        for p in ports {
+            assert!(p < low, "{p} is an ephemeral port (range from {low})");
+        }
+    }
 
     /// Issue 52: the learner's figures of `run.json` (the realised replay ratio) are its final
     /// figures from the run directory, whatever live metrics arrived: none at all (they travel
