@@ -242,7 +242,7 @@ fn run_scenes(args: &SimArgs, cfg: SimConfig, path: &Path) -> anyhow::Result<()>
     if reference {
         println!(
             "\nCrowdNav: its holonomic ORCA robot (safety space 0) in its own simulator on the same \
-             500 scenes, as reported in shared/data/crowdnav_cases/README.md (the paper's ORCA row)."
+             500 scenes, as reported in testdata/crowdnav_cases/README.md (the paper's ORCA row)."
         );
     }
     Ok(())
