@@ -20,7 +20,7 @@
 //! `FSRL_WATCH_COST_IL_EPISODES`, `FSRL_WATCH_COST_IL_EPOCHS`, `FSRL_WATCH_COST_MODES`
 //! (`single`, `distributed` or `single,distributed`).
 
-use std::io::{Read, Write};
+use std::io::Write;
 use std::net::TcpStream;
 use std::path::Path;
 use std::process::{Command, Stdio};
@@ -66,16 +66,10 @@ fn read_page(port: u16, done: Arc<AtomicBool>) -> std::thread::JoinHandle<u64> {
             }
             let mut buf = [0u8; 16384];
             while !done.load(Ordering::Relaxed) {
-                match c.read(&mut buf) {
-                    Ok(0) => break,
-                    Ok(n) => bytes += n as u64,
-                    Err(e)
-                        if matches!(
-                            e.kind(),
-                            std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut
-                        ) => {}
-                    Err(_) => break,
-                }
+                let Some(n) = testkit::read_timed(&mut c, &mut buf) else {
+                    break;
+                };
+                bytes += n as u64;
             }
         }
         bytes

@@ -339,14 +339,7 @@ fn a_single_process_run_killed_and_resumed_shows_one_curve() {
         .iter()
         .map(|p| p.2)
         .collect();
-    assert_eq!(times.len(), walls.len());
-    for (i, (t, w)) in times.iter().zip(&walls).enumerate() {
-        let (dt, dw) = (t - times[0], w - walls[0]);
-        assert!(
-            (dt - dw).abs() < 1e-3,
-            "RL episode {i}: {dt:.4} s after the first in TensorBoard, {dw:.4} s in the log"
-        );
-    }
+    testkit::assert_same_spacing(&times, &walls, "TensorBoard's td_loss");
 }
 
 /// A `tb/` directory as TensorBoard's reader sees it: `x` at steps 1..=3 (value 1) in a file of
@@ -413,13 +406,10 @@ fn a_board_removes_the_temporary_files_a_crashed_rebuild_left() {
     use tboard::writer::{self, EventWriter};
     let dir = tempfile::tempdir().unwrap();
     let run = dir.path();
+    let line = r#"{"phase":"rl","episode":0,"loss":0.5,"wall_s":1.0}"#;
+    std::fs::write(run.join("metrics.jsonl"), format!("{line}\n")).unwrap();
     let tb = run.join("tb");
     std::fs::create_dir_all(&tb).unwrap();
-    std::fs::write(
-        run.join("metrics.jsonl"),
-        "{\"phase\":\"rl\",\"episode\":0,\"loss\":0.5,\"wall_s\":1.0}\n",
-    )
-    .unwrap();
     let left = [
         writer::rebuild_temp_name(),
         format!(".{}.tmp", writer::new_file_name()),

@@ -2,7 +2,7 @@
 //! (`Host`, `Origin`: no DNS rebinding, no other site), and what a silent or slow client may
 //! cost (a deadline on the request's head, a timeout on writes, a bounded number of places).
 
-use std::io::{Read, Write};
+use std::io::Write;
 use std::net::{TcpListener, TcpStream};
 use std::time::{Duration, Instant};
 
@@ -37,16 +37,10 @@ fn ask(port: u16, path: &str, headers: &[(&str, &str)]) -> String {
     let mut out = Vec::new();
     let mut buf = [0u8; 4096];
     while Instant::now() < deadline && !String::from_utf8_lossy(&out).contains("secret") {
-        match c.read(&mut buf) {
-            Ok(0) => break,
-            Ok(n) => out.extend_from_slice(&buf[..n]),
-            Err(e)
-                if matches!(
-                    e.kind(),
-                    std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut
-                ) => {}
-            Err(_) => break,
-        }
+        let Some(n) = testkit::read_timed(&mut c, &mut buf) else {
+            break;
+        };
+        out.extend_from_slice(&buf[..n]);
     }
     String::from_utf8_lossy(&out).into_owned()
 }
@@ -132,14 +126,7 @@ fn a_foreign_origin_is_refused() {
 fn closed(c: &mut TcpStream) -> bool {
     c.set_read_timeout(Some(Duration::from_millis(50))).unwrap();
     let mut buf = [0u8; 1024];
-    match c.read(&mut buf) {
-        Ok(0) => true,
-        Ok(_) => false,
-        Err(e) => !matches!(
-            e.kind(),
-            std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut
-        ),
-    }
+    testkit::read_timed(c, &mut buf).is_none()
 }
 
 #[test]
@@ -175,11 +162,10 @@ fn a_request_head_that_trickles_in_is_cut_at_its_deadline() {
 
 #[test]
 fn a_page_that_stops_reading_its_stream_is_dropped() {
-    let limits = Limits {
+    let (port, hub, server) = serve(Limits {
         write_timeout: Duration::from_secs(1),
         ..Limits::default()
-    };
-    let (port, hub, server) = serve(limits);
+    });
     // A history far larger than the socket buffers of both ends.
     let big = format!(r#"{{"k":"x","pad":"{}"}}"#, "p".repeat(10_000));
     for _ in 0..4_000 {

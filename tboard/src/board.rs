@@ -523,14 +523,19 @@ mod tests {
         f.write_all(text.as_bytes()).unwrap();
     }
 
-    /// `tag`'s (step, value) points in the directory, in file order.
-    fn points(dir: &Path, tag: &str) -> Vec<(i64, f32)> {
+    /// `tag`'s points in the directory, in file order, each as `field` of it with its step.
+    fn series<T>(dir: &Path, tag: &str, field: fn(&Scalar) -> T) -> Vec<(i64, T)> {
         writer::read_dir(&dir.join("tb"))
             .unwrap()
-            .into_iter()
+            .iter()
             .filter(|s| s.tag == tag)
-            .map(|s| (s.step, s.value))
+            .map(|s| (s.step, field(s)))
             .collect()
+    }
+
+    /// `tag`'s (step, value) points in the directory, in file order.
+    fn points(dir: &Path, tag: &str) -> Vec<(i64, f32)> {
+        series(dir, tag, |s| s.value)
     }
 
     const SINGLE: Mode = Mode::SingleProcess {
@@ -639,24 +644,13 @@ mod tests {
 
     /// `tag`'s (step, wall time) points in the directory.
     fn times(dir: &Path, tag: &str) -> Vec<(i64, f64)> {
-        writer::read_dir(&dir.join("tb"))
-            .unwrap()
-            .into_iter()
-            .filter(|s| s.tag == tag)
-            .map(|s| (s.step, s.wall_time))
-            .collect()
+        series(dir, tag, |s| s.wall_time)
     }
 
     /// The points' wall times less the first's, against the log's `wall_s` less the first's.
     fn assert_on_the_log_clock(got: &[(i64, f64)], wall_s: &[f64]) {
-        assert_eq!(got.len(), wall_s.len(), "{got:?}");
-        for ((step, t), w) in got.iter().zip(wall_s) {
-            let (dt, dw) = (t - got[0].1, w - wall_s[0]);
-            assert!(
-                (dt - dw).abs() < 1e-3,
-                "step {step}: {dt} s after the first point in the files, {dw} s in the log: {got:?}"
-            );
-        }
+        let t: Vec<f64> = got.iter().map(|p| p.1).collect();
+        testkit::assert_same_spacing(&t, wall_s, &format!("the event files {got:?}"));
     }
 
     /// Issue 52: a rebuilt file's points keep the run's timing (each its log line's `wall_s`);

@@ -3,6 +3,8 @@
 //! - [`free_port`]: a loopback TCP port for a process a test starts. Every test and bench that
 //!   needs one asks here; none calls `bind(0)` itself (see the function for why).
 //! - [`Children`], [`Reaped`]: child processes killed and reaped however a test ends.
+//! - [`read_timed`]: one read of a socket with a read timeout, a timeout not being an end.
+//! - [`assert_same_spacing`]: two series of times (seconds) spaced alike, whatever their start.
 
 use std::net::TcpListener;
 use std::process::Child;
@@ -62,6 +64,32 @@ impl Drop for Reaped {
     }
 }
 
+/// One read of `r` (a socket with a read timeout): `Some(n)` for `n` bytes read, `Some(0)` when
+/// the timeout passed with nothing to read (`WouldBlock`, `TimedOut`), `None` at the end of the
+/// stream or on any other error.
+pub fn read_timed(r: &mut impl std::io::Read, buf: &mut [u8]) -> Option<usize> {
+    use std::io::ErrorKind::{TimedOut, WouldBlock};
+    match r.read(buf) {
+        Ok(0) => None,
+        Ok(n) => Some(n),
+        Err(e) if matches!(e.kind(), WouldBlock | TimedOut) => Some(0),
+        Err(_) => None,
+    }
+}
+
+/// Asserts that the times `got` (seconds, one per point) keep the spacing of `want`: each less
+/// its series' first agrees within 1 ms. `what` says where `got` was read, for the message.
+pub fn assert_same_spacing(got: &[f64], want: &[f64], what: &str) {
+    assert_eq!(got.len(), want.len(), "{got:?} in {what} against {want:?}");
+    for (i, (t, w)) in got.iter().zip(want).enumerate() {
+        let (dt, dw) = (t - got[0], w - want[0]);
+        assert!(
+            (dt - dw).abs() < 1e-3,
+            "point {i}: {dt:.4} s after the first in {what}, {dw:.4} s in the log"
+        );
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -73,8 +101,42 @@ mod tests {
         let b = free_port();
         assert_ne!(a, b);
         for p in [a, b] {
-            assert!((10_000..low.max(11_000)).contains(&u32::from(p)), "{p} vs {low}");
+            assert!(
+                (10_000..low.max(11_000)).contains(&u32::from(p)),
+                "{p} vs {low}"
+            );
             TcpListener::bind(("127.0.0.1", p)).expect("still free");
         }
+    }
+
+    #[test]
+    fn spacing_ignores_the_start_and_nothing_else() {
+        assert_same_spacing(&[100.0, 110.0, 110.5], &[3.0, 13.0, 13.5], "here");
+        let shifted = std::panic::catch_unwind(|| {
+            assert_same_spacing(&[100.0, 110.0, 111.0], &[3.0, 13.0, 13.5], "here")
+        });
+        assert!(shifted.is_err());
+    }
+
+    #[test]
+    fn a_timed_read_tells_data_from_the_timeout_and_the_end() {
+        struct Script(Vec<std::io::Result<usize>>);
+        impl std::io::Read for Script {
+            fn read(&mut self, _: &mut [u8]) -> std::io::Result<usize> {
+                self.0.remove(0)
+            }
+        }
+        let err = |k| Err(std::io::Error::from(k));
+        use std::io::ErrorKind::{BrokenPipe, TimedOut, WouldBlock};
+        let mut r = Script(vec![
+            Ok(5),
+            err(WouldBlock),
+            err(TimedOut),
+            Ok(0),
+            err(BrokenPipe),
+        ]);
+        let mut buf = [0u8; 8];
+        let got: Vec<_> = (0..5).map(|_| read_timed(&mut r, &mut buf)).collect();
+        assert_eq!(got, [Some(5), Some(0), Some(0), None, None]);
     }
 }
