@@ -9,7 +9,7 @@
 use std::path::PathBuf;
 
 use anyhow::bail;
-use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+use indicatif::ProgressBar;
 use lab::evaluation::{evaluate_orca, EvalPlan, LoadedPolicy};
 use lab::policy_file::{resolve_input, Input};
 use policy::method::Select;
@@ -74,14 +74,7 @@ pub fn parse_select(s: &str) -> Result<Select, String> {
 }
 
 pub fn progress(len: u64, what: &str) -> ProgressBar {
-    let bar = ProgressBar::with_draw_target(Some(len), ProgressDrawTarget::stderr_with_hz(4));
-    bar.set_style(
-        ProgressStyle::with_template(&format!(
-            "{what:>12} [{{elapsed_precise}}] {{bar:30}} {{pos}}/{{len}} ({{per_sec}}, ETA {{eta}})"
-        ))
-        .expect("valid template"),
-    );
-    bar
+    launch::progress::bar(len, what, 12, false)
 }
 
 /// The settings named on the command line (all six when none), every problem reported at once.

@@ -5,15 +5,23 @@ use std::time::{Duration, Instant};
 
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 
-fn progress_bar(len: u64, what: &str) -> ProgressBar {
+/// A bar of `len` steps on stderr (hidden when stderr is not a terminal): `what`, right-aligned
+/// in `width` columns, the elapsed time, the bar, the count, the rate and the ETA, then the
+/// bar's message when `with_message`.
+pub fn bar(len: u64, what: &str, width: usize, with_message: bool) -> ProgressBar {
+    let msg = if with_message { " {msg}" } else { "" };
     let bar = ProgressBar::with_draw_target(Some(len), ProgressDrawTarget::stderr_with_hz(4));
     bar.set_style(
         ProgressStyle::with_template(&format!(
-            "{what:>10} [{{elapsed_precise}}] {{bar:30}} {{pos}}/{{len}} ({{per_sec}}, ETA {{eta}}) {{msg}}"
+            "{what:>width$} [{{elapsed_precise}}] {{bar:30}} {{pos}}/{{len}} ({{per_sec}}, ETA {{eta}}){msg}"
         ))
         .expect("valid template"),
     );
     bar
+}
+
+fn progress_bar(len: u64, what: &str) -> ProgressBar {
+    bar(len, what, 10, true)
 }
 
 /// Prints a plain progress line when stderr is not a terminal (CI logs), at most every 10 s.

@@ -133,7 +133,8 @@ pub fn run_with_probe(
     probe: crate::store::Probe,
 ) -> Result<LearnerExit, ProcessError> {
     let status = Heartbeat::new(transport)?;
-    status.finish(run_inner(transport, spec, opts, stop, probe, &status))
+    let exit = run_inner(transport, spec, opts, stop, probe, &status);
+    status.finish(exit)
 }
 
 /// The run's phases, in order (module docs).
@@ -341,26 +342,18 @@ impl<'a> Learner<'a> {
         state: State,
     ) -> Result<Self, ProcessError> {
         let run = t.run();
-        let State {
-            core,
-            accepted_below,
-            wal,
-            sim_cfg,
-            log,
-            wall0,
-        } = state;
         Ok(Learner {
             t,
             status,
             spec,
             opts,
-            core,
-            accepted_below,
+            core: state.core,
+            accepted_below: state.accepted_below,
             acks: HashMap::new(),
             weights: t.latest_publisher(&keys::weights(run))?,
             control: t.latest_publisher(&keys::control(run))?,
             metrics: t.publisher(&keys::metrics(run, t.sender()))?,
-            wal,
+            wal: state.wal,
             members: Members::default(),
             alive_tokens_refused: 0,
             window: Window::default(),
@@ -376,9 +369,9 @@ impl<'a> Learner<'a> {
             wait: Duration::ZERO,
             train: Duration::ZERO,
             last_loss: f32::NAN,
-            sim_cfg,
-            log,
-            wall0,
+            sim_cfg: state.sim_cfg,
+            log: state.log,
+            wall0: state.wall0,
             stored: None,
             log_failures: 0,
         })

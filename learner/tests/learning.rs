@@ -12,6 +12,8 @@ mod crash;
 mod finish;
 #[path = "learning/imitation_retry.rs"]
 mod imitation_retry;
+#[path = "support/run.rs"]
+mod run;
 
 use evaluator::{evaluate, Subject};
 use learner::checkpoint::{self, CheckpointError, RunInfo};

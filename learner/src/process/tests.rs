@@ -7,13 +7,16 @@ use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use policy::method::{Method, ReplayRatio, RunSpec, TrainConfig};
-use policy::rollout::{rollout, Behaviour};
+use policy::method::{ReplayRatio, RunSpec, TrainConfig};
 use proto::{keys, Member, RunId, RunPhase, SenderId};
-use transport::{AliveEvent, Heartbeat, Transport, TransportConfig, ZenohConfig};
+use transport::{AliveEvent, Heartbeat};
 
 use super::{restore, training, Learner, LearnerExit, LearnerOptions, MAX_ACTORS};
 use crate::store::{Op, Probe};
+
+#[path = "../../tests/support/run.rs"]
+mod run;
+use run::{episode, transport};
 
 const PATIENCE: Duration = Duration::from_secs(120);
 
@@ -22,18 +25,6 @@ const EPISODES: u64 = 4;
 
 /// Updates per episode of the adaptive runs below (`min = max`).
 const RATIO: f64 = 3.0;
-
-/// A transport of `run` as `sender`, listening on `port` (`listen`) or connecting to it.
-fn transport(run: &RunId, sender: SenderId, port: u16, listen: bool) -> Transport {
-    let mut cfg = TransportConfig::new(run.clone(), sender);
-    let ep = format!("tcp/127.0.0.1:{port}");
-    cfg.zenoh = if listen {
-        ZenohConfig::peer(vec![ep], Vec::new())
-    } else {
-        ZenohConfig::peer(Vec::new(), vec![ep])
-    };
-    Transport::open(cfg).expect("transport")
-}
 
 /// A short adaptive run's spec: `RATIO` updates per episode in rounds of at most 2, so the
 /// last episode taken is owed updates after it (the top-up).
@@ -47,13 +38,7 @@ fn adaptive_spec() -> RunSpec {
         min: RATIO,
         max: RATIO,
     });
-    RunSpec {
-        method: Method::Sarl,
-        setting: "env1-invisible".parse().unwrap(),
-        sim: sim::SimConfig::default(),
-        train,
-        seed: 5,
-    }
+    run::spec(train)
 }
 
 fn options(dir: &Path, run: &RunId, linger: Duration) -> LearnerOptions {
@@ -64,16 +49,6 @@ fn options(dir: &Path, run: &RunId, linger: Duration) -> LearnerOptions {
         metrics_interval: Duration::from_millis(100),
         linger,
     }
-}
-
-/// An honest ORCA episode of the run's setting as the actor's episode `episode`.
-fn episode(spec: &RunSpec, episode: u64) -> proto::TransitionBatch {
-    let mut env = sim::Env::new(spec.method_sim(), spec.setting, 0).unwrap();
-    let orca = Behaviour::Orca {
-        safety_space_m: 0.0,
-    };
-    let ep = rollout(&mut env, 100 + episode, orca).unwrap();
-    policy::wire::to_batch(&ep, episode, env.action_set().len() as u16).unwrap()
 }
 
 /// The adaptive learner as a process (in a thread) in `dir`, fed every episode at once by a
@@ -124,12 +99,20 @@ fn adaptive_run(dir: &Path, name: &str, stop_at_last: bool) -> LearnerExit {
     exit.expect("the learner")
 }
 
-/// The counters of the checkpoint in `dir`.
-fn checkpointed(dir: &Path) -> crate::Counters {
-    crate::checkpoint::load(&crate::store::checkpoint_path(dir))
+/// [`adaptive_run`] in a new directory: how it ended, the counters of its checkpoint and the
+/// figures of its record.
+fn adaptive_outcome(
+    name: &str,
+    stop_at_last: bool,
+) -> (LearnerExit, crate::Counters, proto::Metrics) {
+    let dir = tempfile::tempdir().unwrap();
+    let exit = adaptive_run(dir.path(), name, stop_at_last);
+    let counters = crate::checkpoint::load(&crate::store::checkpoint_path(dir.path()))
         .expect("a checkpoint")
         .core
-        .counters()
+        .counters();
+    let figures = crate::record::read(dir.path()).expect("the run's figures");
+    (exit, counters, figures)
 }
 
 /// Issue 52: Ctrl-C while the adaptive schedule trains the updates its last episodes are owed
@@ -137,15 +120,12 @@ fn checkpointed(dir: &Path) -> crate::Counters {
 /// the top-up and report `Finished`.
 #[test]
 fn a_stop_during_the_adaptive_top_up_stops_the_run() {
-    let dir = tempfile::tempdir().unwrap();
-    let exit = adaptive_run(dir.path(), "topstop", true);
+    let (exit, c, figures) = adaptive_outcome("topstop", true);
     assert_eq!(exit, LearnerExit::Stopped);
-    let c = checkpointed(dir.path());
     assert_eq!(
         c.rl_episodes, EPISODES,
         "the stop came after the last episode"
     );
-    let figures = crate::record::read(dir.path()).expect("the figures at the stop");
     let ratio = figures.values["updates_per_episode"];
     assert!(
         ratio < RATIO,
@@ -160,11 +140,8 @@ fn a_stop_during_the_adaptive_top_up_stops_the_run() {
 /// received none had no `learner_updates_per_episode`.
 #[test]
 fn the_final_figures_are_in_the_run_directory_when_the_learner_exits() {
-    let dir = tempfile::tempdir().unwrap();
-    let exit = adaptive_run(dir.path(), "figures", false);
+    let (exit, c, figures) = adaptive_outcome("figures", false);
     assert_eq!(exit, LearnerExit::Finished);
-    let c = checkpointed(dir.path());
-    let figures = crate::record::read(dir.path()).expect("the final figures");
     let v = &figures.values;
     let (e0, u0) = (v["rl_start_episodes"] as u64, v["rl_start_updates"] as u64);
     assert_eq!(c.rl_episodes - e0, EPISODES);

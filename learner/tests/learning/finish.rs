@@ -10,49 +10,14 @@ use std::time::{Duration, Instant};
 use evaluator::process::{EvaluatorExit, EvaluatorOptions};
 use learner::process::{LearnerExit, LearnerOptions};
 use learner::LearnerCore;
-use policy::method::{Method, ReplayRatio, RunSpec, TrainConfig};
+use policy::method::{Method, ReplayRatio, TrainConfig};
 use policy::rollout::{rollout, Behaviour};
 use proto::{keys, Control, RunId, RunPhase, SenderId};
 use testkit::free_port;
-use transport::{Transport, TransportConfig, ZenohConfig};
+
+use crate::run::{episode, spec, transport};
 
 const PATIENCE: Duration = Duration::from_secs(120);
-
-/// A transport of `run` as `sender`, listening on `port` (`listen`) or connecting to it.
-fn transport(run: &RunId, sender: SenderId, port: u16, listen: bool) -> Transport {
-    let mut cfg = TransportConfig::new(run.clone(), sender);
-    let ep = format!("tcp/127.0.0.1:{port}");
-    cfg.zenoh = if listen {
-        ZenohConfig::peer(vec![ep], Vec::new())
-    } else {
-        ZenohConfig::peer(vec!["tcp/127.0.0.1:0".into()], vec![ep])
-    };
-    Transport::open(cfg).expect("transport")
-}
-
-fn spec(train: TrainConfig) -> RunSpec {
-    RunSpec {
-        method: Method::Sarl,
-        setting: "env1-invisible".parse().unwrap(),
-        sim: sim::SimConfig::default(),
-        train,
-        seed: 5,
-    }
-}
-
-/// An honest ORCA episode of the run's setting as the actor's episode `episode`.
-fn episode(spec: &RunSpec, episode: u64) -> proto::TransitionBatch {
-    let mut env = sim::Env::new(spec.method_sim(), spec.setting, 0).unwrap();
-    let ep = rollout(
-        &mut env,
-        100 + episode,
-        Behaviour::Orca {
-            safety_space_m: 0.0,
-        },
-    )
-    .unwrap();
-    policy::wire::to_batch(&ep, episode, env.action_set().len() as u16).unwrap()
-}
 
 /// The adaptive learner as a process (in a thread) fed by a stand-in actor: the first
 /// `Finished` control it sends names the version of weights that carry the final RL episode
