@@ -618,6 +618,7 @@ mod tests {
         name.parse().unwrap()
     }
 
+    /// A dry run of SARL on env1-invisible, seed 0, with the config file `config`, in `runs`.
     fn args(config: &Path, runs: &Path) -> Request {
         Request {
             config: Some(config.to_path_buf()),
@@ -626,7 +627,7 @@ mod tests {
             replay_ratio: None,
             shard: None,
             methods: vec!["sarl".into()],
-            settings: Vec::new(),
+            settings: vec!["env1-invisible".into()],
             seeds: vec![0],
             runs: runs.to_path_buf(),
             models: runs.join("models"),
@@ -635,6 +636,59 @@ mod tests {
             dry_run: true,
             no_train: false,
         }
+    }
+
+    /// [`args`] with the config file `dir/c.toml` (its path returned too), which holds `config`,
+    /// and the runs in `dir/runs`.
+    fn request(dir: &Path, config: &str, runs: &str) -> (PathBuf, Request) {
+        let cfg = dir.join("c.toml");
+        std::fs::write(&cfg, config).unwrap();
+        let a = args(&cfg, &dir.join(runs));
+        (cfg, a)
+    }
+
+    fn layout_of(a: &Request) -> Layout {
+        Layout {
+            runs: a.runs.clone(),
+            models: a.models.clone(),
+        }
+    }
+
+    /// A finished run of `method` on env1-invisible, seed 0, in `layout`, as `fsrl train` with
+    /// the config file `cfg` leaves it (its `report.json`): its directory and its configuration,
+    /// resolved (for [`write_config`]).
+    fn finished_run(
+        layout: &Layout,
+        cfg: &Path,
+        method: Method,
+    ) -> (PathBuf, crate::config::Resolved) {
+        let dir = layout.run_dir(&run_name(method, set("env1-invisible"), 0));
+        std::fs::create_dir_all(&dir).unwrap();
+        std::fs::write(dir.join("report.json"), "{}").unwrap();
+        let mut file = FileConfig::load(Some(cfg)).unwrap();
+        file.run.method = method.name().into();
+        file.run.setting = "env1-invisible".into();
+        (dir, file.resolve(Vec::new()).unwrap())
+    }
+
+    /// The run's `config.toml`, as `fsrl train` writes it.
+    fn write_config(dir: &Path, r: &crate::config::Resolved) {
+        std::fs::write(dir.join("config.toml"), toml::to_string(&r.file).unwrap()).unwrap()
+    }
+
+    /// Asserts that the grid of `a` is refused, its error naming each of `needles`.
+    fn assert_refused(a: &Request, needles: &[&str]) {
+        let err = format!("{:#}", grid(a).err().unwrap());
+        for needle in needles {
+            assert!(err.contains(needle), "missing {needle:?} in\n{err}");
+        }
+    }
+
+    /// Whether the plan of `a`'s grid says its first run was trained with another `[train]`.
+    fn config_differs(a: &Request, layout: &Layout) -> bool {
+        let g = grid(a).unwrap();
+        let cells = cells(&g.methods, &g.settings, &g.seeds);
+        plan(&cells, layout, &g.file.sim, &|m| g.train_of(m), 500)[0].config_differs
     }
 
     #[test]
@@ -664,31 +718,28 @@ mod tests {
     #[test]
     fn bad_names_are_refused_together_before_anything_starts() {
         let tmp = tempfile::tempdir().unwrap();
-        let cfg = tmp.path().join("c.toml");
-        std::fs::write(&cfg, "[train]\ngamma = 1.5\n").unwrap();
-        let mut a = args(&cfg, &tmp.path().join("runs"));
+        let (_, mut a) = request(tmp.path(), "[train]\ngamma = 1.5\n", "runs");
         a.methods = vec!["dqn".into(), "orca".into(), "sarl".into(), "sarl".into()];
         a.settings = vec!["env9-visible".into(), "env1-visible".into()];
         a.seeds = vec![0, 0];
         a.episodes = 0;
-        let err = format!("{:#}", grid(&a).err().unwrap());
-        for needle in [
-            "7 problems",
-            "unknown method `dqn`",
-            "orca is not trained",
-            "lists sarl twice",
-            "unknown setting `env9-visible`",
-            "--seeds lists 0 twice",
-            "--episodes",
-            "train.gamma",
-        ] {
-            assert!(err.contains(needle), "missing {needle:?} in\n{err}");
-        }
+        assert_refused(
+            &a,
+            &[
+                "7 problems",
+                "unknown method `dqn`",
+                "orca is not trained",
+                "lists sarl twice",
+                "unknown setting `env9-visible`",
+                "--seeds lists 0 twice",
+                "--episodes",
+                "train.gamma",
+            ],
+        );
         assert!(!tmp.path().join("runs").exists());
 
         a = args(&tmp.path().join("missing.toml"), tmp.path());
-        let err = format!("{:#}", grid(&a).err().unwrap());
-        assert!(err.contains("missing.toml"), "{err}");
+        assert_refused(&a, &["missing.toml"]);
     }
 
     /// Issue 44: a run `fsrl train` trained with the default replay ratio of distributed runs
@@ -697,34 +748,14 @@ mod tests {
     #[test]
     fn a_default_distributed_run_is_trained_with_the_grids_own_train() {
         let tmp = tempfile::tempdir().unwrap();
-        let cfg = tmp.path().join("c.toml");
-        std::fs::write(&cfg, "").unwrap();
-        let mut a = args(&cfg, &tmp.path().join("runs"));
-        a.settings = vec!["env1-invisible".into()];
-        let layout = Layout {
-            runs: a.runs.clone(),
-            models: a.models.clone(),
-        };
+        let (cfg, mut a) = request(tmp.path(), "", "runs");
+        let layout = layout_of(&a);
         // The run directory as `fsrl train` (distributed, no flags) leaves it.
-        let dir = layout.run_dir(&run_name(Method::Sarl, set("env1-invisible"), 0));
-        std::fs::create_dir_all(&dir).unwrap();
-        std::fs::write(dir.join("report.json"), "{}").unwrap();
-        let mut file = FileConfig::load(Some(&cfg)).unwrap();
-        file.run.method = "sarl".into();
-        file.run.setting = "env1-invisible".into();
-        let mut resolved = file.resolve(Vec::new()).unwrap();
+        let (dir, mut resolved) = finished_run(&layout, &cfg, Method::Sarl);
         resolved.file.train.rl.replay_ratio = Some(policy::method::ReplayRatio::LOCAL_DEFAULT);
         resolved.file.train.select = policy::method::Select::DISTRIBUTED_DEFAULT;
-        std::fs::write(
-            dir.join("config.toml"),
-            toml::to_string(&resolved.file).unwrap(),
-        )
-        .unwrap();
-        let differs = |a: &Request| {
-            let g = grid(a).unwrap();
-            let cells = cells(&g.methods, &g.settings, &g.seeds);
-            plan(&cells, &layout, &g.file.sim, &|m| g.train_of(m), 500)[0].config_differs
-        };
+        write_config(&dir, &resolved);
+        let differs = |a: &Request| config_differs(a, &layout);
         assert!(!differs(&a), "a default distributed run");
         a.replay_ratio = Some(Some(ReplayRatio::LOCAL_DEFAULT));
         assert!(!differs(&a), "--replay-ratio 4,20");
@@ -735,24 +766,17 @@ mod tests {
         assert!(differs(&a), "--single-process");
         // Bounds in the file and single-process runs: refused with the grid's other problems.
         std::fs::write(&cfg, "[train.rl]\nreplay_ratio = { min = 2, max = 9 }\n").unwrap();
-        let e = format!("{:#}", grid(&a).err().unwrap());
-        assert!(e.contains("needs distributed runs"), "{e}");
+        assert_refused(&a, &["needs distributed runs"]);
     }
 
     #[test]
     fn the_plan_lists_every_run_and_the_estimate() {
         let tmp = tempfile::tempdir().unwrap();
-        let cfg = tmp.path().join("c.toml");
-        std::fs::write(&cfg, "").unwrap();
-        let mut a = args(&cfg, &tmp.path().join("runs"));
+        let (_, mut a) = request(tmp.path(), "", "runs");
         a.methods = vec!["lstm-rl".into(), "fsrl".into()];
-        a.settings = vec!["env1-invisible".into()];
         a.seeds = vec![0, 1];
         let g = grid(&a).unwrap();
-        let layout = Layout {
-            runs: a.runs.clone(),
-            models: a.models.clone(),
-        };
+        let layout = layout_of(&a);
         let dir = layout.run_dir("fsrl-env1-invisible-s0");
         std::fs::create_dir_all(dir.join("checkpoints")).unwrap();
         std::fs::write(dir.join("checkpoints/latest.ckpt"), "x").unwrap();
@@ -797,43 +821,27 @@ mod tests {
     #[test]
     fn an_fsrl_plan_run_with_the_files_own_select_is_trained_with_the_grids_train() {
         let tmp = tempfile::tempdir().unwrap();
-        let cfg = tmp.path().join("c.toml");
-        std::fs::write(&cfg, "[train]\nselect = \"low-disc\"\n").unwrap();
         for single_process in [false, true] {
-            let mut a = args(&cfg, &tmp.path().join(format!("runs-{single_process}")));
+            let runs = format!("runs-{single_process}");
+            let (cfg, mut a) = request(tmp.path(), "[train]\nselect = \"low-disc\"\n", &runs);
             a.methods = vec!["fsrl-plan".into()];
-            a.settings = vec!["env1-invisible".into()];
             a.single_process = single_process;
-            let layout = Layout {
-                runs: a.runs.clone(),
-                models: a.models.clone(),
-            };
+            let layout = layout_of(&a);
             // The run directory as `fsrl train --method fsrl-plan --config c.toml` leaves it.
-            let dir = layout.run_dir(&run_name(Method::FsrlPlan, set("env1-invisible"), 0));
-            std::fs::create_dir_all(&dir).unwrap();
-            std::fs::write(dir.join("report.json"), "{}").unwrap();
-            let mut file = FileConfig::load(Some(&cfg)).unwrap();
-            file.run.method = "fsrl-plan".into();
-            file.run.setting = "env1-invisible".into();
-            let mut resolved = file.resolve(Vec::new()).unwrap();
+            let (dir, mut resolved) = finished_run(&layout, &cfg, Method::FsrlPlan);
             if !single_process {
                 resolved.for_processes(&dir, false, None, true).unwrap();
             }
             assert_eq!(resolved.file.train.select, policy::method::Select::LowDisc);
-            let written = |r: &crate::config::Resolved| {
-                std::fs::write(dir.join("config.toml"), toml::to_string(&r.file).unwrap()).unwrap()
-            };
-            written(&resolved);
-            let differs = || {
-                let g = grid(&a).unwrap();
-                let cells = cells(&g.methods, &g.settings, &g.seeds);
-                plan(&cells, &layout, &g.file.sim, &|m| g.train_of(m), 500)[0].config_differs
-            };
-            assert!(!differs(), "single process: {single_process}");
-            resolved.file.train.select = policy::method::Select::BestReturn;
-            written(&resolved);
+            write_config(&dir, &resolved);
             assert!(
-                differs(),
+                !config_differs(&a, &layout),
+                "single process: {single_process}"
+            );
+            resolved.file.train.select = policy::method::Select::BestReturn;
+            write_config(&dir, &resolved);
+            assert!(
+                config_differs(&a, &layout),
                 "another choice, single process: {single_process}"
             );
         }
