@@ -501,9 +501,10 @@ fn a_default_distributed_run_does_not_resume_in_one_process() {
     );
 }
 
-/// A tiny distributed run (one actor, no evaluator, over zenoh) with `--dashboard PORT`.
-fn tiny_with_page(out: &Path, port: u16) -> std::process::Output {
-    fsrl()
+/// A tiny distributed run (one actor, no evaluator, over zenoh) with `--dashboard PORT`: its
+/// output and its stderr as text.
+fn tiny_with_page(out: &Path, port: u16) -> (std::process::Output, String) {
+    let o = fsrl()
         .args([
             "train",
             "--method",
@@ -525,16 +526,16 @@ fn tiny_with_page(out: &Path, port: u16) -> std::process::Output {
         .args(["--dashboard", &port.to_string(), "--out"])
         .arg(out)
         .output()
-        .unwrap()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&o.stderr).into_owned();
+    (o, stderr)
 }
 
 /// Issue 52: `--dashboard 0` serves the page on a free port and says which, not port 0.
 #[test]
 fn the_live_page_on_port_0_is_announced_on_the_port_it_serves() {
     let dir = tempfile::tempdir().unwrap();
-    let out = dir.path().join("run");
-    let o = tiny_with_page(&out, 0);
-    let stderr = String::from_utf8_lossy(&o.stderr);
+    let (o, stderr) = tiny_with_page(&dir.path().join("run"), 0);
     assert!(o.status.success(), "{stderr}");
     let port = stderr
         .lines()
@@ -550,12 +551,11 @@ fn the_live_page_on_port_0_is_announced_on_the_port_it_serves() {
 /// anything starts; it used to be written to logs/dashboard.log alone while the run went on.
 #[test]
 fn a_live_page_port_in_use_is_refused_before_anything_starts() {
-    let dir = tempfile::tempdir().unwrap();
-    let out = dir.path().join("run");
     let port = testkit::free_port();
     let _taken = std::net::TcpListener::bind(("127.0.0.1", port)).unwrap();
-    let o = tiny_with_page(&out, port);
-    let stderr = String::from_utf8_lossy(&o.stderr);
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("run");
+    let (o, stderr) = tiny_with_page(&out, port);
     assert!(!o.status.success(), "{stderr}");
     assert!(
         stderr.contains(&format!("cannot serve the live page on 127.0.0.1:{port}")),

@@ -612,6 +612,7 @@ impl Runner {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::config::RunSection;
     use lab::run::run_name;
 
     fn set(name: &str) -> Setting {
@@ -693,10 +694,16 @@ mod tests {
 
     #[test]
     fn run_names_are_those_of_fsrl_train() {
-        let mut f = FileConfig::default();
-        f.run.method = "sarl+foresight".into();
-        f.run.setting = "env3-visible".into();
-        f.run.seed = 2;
+        let run = RunSection {
+            method: "sarl+foresight".into(),
+            setting: "env3-visible".into(),
+            seed: 2,
+            ..RunSection::default()
+        };
+        let f = FileConfig {
+            run,
+            ..FileConfig::default()
+        };
         let resolved = f.resolve(Vec::new()).unwrap();
         let name = run_name(Method::SarlForesight, set("env3-visible"), 2);
         assert_eq!(name, "sarl-foresight-env3-visible-s2");
@@ -797,22 +804,28 @@ mod tests {
                 "fsrl-env1-invisible-s1"
             ]
         );
-        let text = describe(&p, false, &g.file.train, 500, false);
-        assert!(
-            text.contains("resume (0 RL ep. logged; from the last checkpoint)"),
-            "{text}"
-        );
-        assert!(
-            text.contains(
-                "4 runs: 0 finished, 1 to resume, 3 to train; 4 to export, 4 to evaluate"
+        // (ORCA's evaluation current, --no-train): what the description says.
+        let cases: [(bool, bool, &[&str]); 2] = [
+            (
+                false,
+                false,
+                &[
+                    "resume (0 RL ep. logged; from the last checkpoint)",
+                    "4 runs: 0 finished, 1 to resume, 3 to train; 4 to export, 4 to evaluate",
+                ],
             ),
-            "{text}"
-        );
-        let text = describe(&p, true, &g.file.train, 500, true);
-        assert!(
-            text.contains("(skipped: --no-train); 0 to export, 0 to evaluate; estimated 0s"),
-            "{text}"
-        );
+            (
+                true,
+                true,
+                &["(skipped: --no-train); 0 to export, 0 to evaluate; estimated 0s"],
+            ),
+        ];
+        for (orca_current, no_train, needles) in cases {
+            let text = describe(&p, orca_current, &g.file.train, 500, no_train);
+            for needle in needles {
+                assert!(text.contains(needle), "{needle:?} in\n{text}");
+            }
+        }
     }
 
     /// Issue 52: an `fsrl-plan` run of a grid whose config chooses its own `[train] select` is
