@@ -16,7 +16,8 @@
 //! than the budget (timed at start-up), so no one step takes long; `cmd_vel` is published with
 //! congestion control `Drop` at priority `RealTime` ([`RosNode::command_publisher`]), so a
 //! subscriber that does not read cannot block it; queries never reach the loop nor block
-//! zenoh's threads ([`crate::queries`]); and whatever ends the loop, a panic included, its last
+//! zenoh's threads ([`crate::queries`]), and behind a router their replies go on a link of
+//! their own ([`queries_session`]); and whatever ends the loop, a panic included, its last
 //! command is a zero one ([`FinalStop`]).
 
 use std::path::PathBuf;
@@ -641,9 +642,11 @@ pub fn run(
             .with_threads(opts.threads),
         opts.limits,
         opts.max_people,
-    )?;
+    )
+    .map_err(ServeError::Config)?;
     let subscribers = subscribe_inputs(&mut node, opts, &inbox)?;
-    let queryable = declare_queryable(&node, &act_key, &queries)?;
+    let asked = queries_session(&node, &opts.zenoh)?;
+    let queryable = declare_queryable(&asked, &act_key, &queries)?;
     tracing::info!(
         model = %opts.model.display(),
         method = %policy.model().method,
@@ -669,6 +672,7 @@ pub fn run(
     drop(queryable);
     drop(subscribers);
     let summary = summarise(&driver.control, &mut queries, &inbox);
+    drop(asked);
     drop(node);
     Ok(summary)
 }
@@ -750,14 +754,37 @@ fn subscribe_inputs(
     Ok([odom, goal, people])
 }
 
-/// The queryable `act_key`: each query handed to `queries` at once.
+/// The session the queryable is declared on. Connected to a router (`connect` given), one of
+/// its own, opened from the same settings without listening: its own link to the router, so
+/// that the replies to askers that do not read, which the router forwards with the askers'
+/// congestion control (`Block` by default), stall the router's reading of that link only, not
+/// of the link the robot's inputs and `cmd_vel` go on (with one session, the robot received no
+/// zero command for seconds). Else the node's own: askers connect directly, each on its own
+/// link.
+fn queries_session(node: &RosNode, zenoh: &transport::ZenohConfig) -> Result<Session, ServeError> {
+    if zenoh.connect.is_empty() {
+        return Ok(node.session.clone());
+    }
+    let own = transport::ZenohConfig {
+        listen: Vec::new(),
+        ..zenoh.clone()
+    };
+    let cfg = own
+        .to_zenoh(crate::msg::MAX_MESSAGE_BYTES)
+        .map_err(|e| ServeError::Config(e.to_string()))?;
+    zenoh::open(cfg)
+        .wait()
+        .map_err(zerr("open the queryable's session"))
+}
+
+/// The queryable `act_key` on `session`: each query handed to `queries` at once.
 fn declare_queryable(
-    node: &RosNode,
+    session: &Session,
     act_key: &str,
     queries: &Queries,
 ) -> Result<Queryable<()>, ServeError> {
     let offer = queries.offerer();
-    node.session
+    session
         .declare_queryable(act_key.to_string())
         .callback(move |query| offer.offer(query))
         .wait()

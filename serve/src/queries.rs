@@ -1,8 +1,9 @@
 //! The queryable `fsrl/serve/<name>/act` (MessagePack, `proto::serve`), kept off the control
 //! loop and off zenoh's callback threads.
 //!
-//! zenoh calls [`Queries::offer`] on the thread that reads the asker's link, which may be the
-//! very link the robot's inputs come on (behind a router, every peer's traffic shares one link).
+//! zenoh calls [`Offer::offer`] on the thread that reads the asker's link, which may be the
+//! very link the robot's inputs come on (behind a router, every peer's traffic to a session
+//! shares one link; the queryable has a session of its own there, `node::queries_session`).
 //! A reply goes with the asker's congestion control (zenoh 1.10 ignores a reply's own), `Block`
 //! by default: to an asker that does not read, it waits until the link takes it (up to zenoh's
 //! `wait_before_close`, 5 s), and so does the final "no more replies" that dropping a query
@@ -20,7 +21,6 @@ use std::time::Instant;
 use zenoh::query::Query;
 use zenoh::Wait;
 
-use crate::node::ServeError;
 use crate::people::PersonObs;
 use crate::served::{Limits, Observation, RobotObs, ServedPolicy};
 
@@ -89,18 +89,18 @@ pub struct Queries {
 }
 
 impl Queries {
-    /// Starts the worker (answering with `policy`) and the refuser.
+    /// Starts the worker (answering with `policy`) and the refuser; why not.
     pub fn start(
         mut policy: ServedPolicy,
         limits: Limits,
         max_people: usize,
-    ) -> Result<Self, ServeError> {
+    ) -> Result<Self, String> {
         let shared = Arc::new(Shared::default());
         let spawn = |name: &str, f: Box<dyn FnOnce() + Send>| {
             std::thread::Builder::new()
                 .name(name.into())
                 .spawn(f)
-                .map_err(|e| ServeError::Config(format!("cannot start {name}: {e}")))
+                .map_err(|e| format!("cannot start {name}: {e}"))
         };
         let s = shared.clone();
         let worker = spawn(
