@@ -54,6 +54,23 @@ pub struct HumanObs {
     pub standing: Option<bool>,
 }
 
+impl HumanObs {
+    /// A person seen at (`x_m`, `y_m`) moving at (`vx_mps`, `vy_mps`), nothing else known.
+    pub fn walking(x_m: f64, y_m: f64, vx_mps: f64, vy_mps: f64) -> Self {
+        Self {
+            x_m,
+            y_m,
+            vx_mps,
+            vy_mps,
+            radius_m: None,
+            goal_x_m: None,
+            goal_y_m: None,
+            v_pref_mps: None,
+            standing: None,
+        }
+    }
+}
+
 /// One observation: what the policy decides from.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -120,6 +137,26 @@ pub enum RequestError {
 }
 
 impl ActRequest {
+    /// Test support: the robot at rest at (0, −4) heading 1.5 rad, its goal (0, 4), `humans`
+    /// people (person `i` at (1 + i, 0) walking at (−0.5, 0)), no steps yet.
+    #[doc(hidden)]
+    pub fn example(humans: usize) -> Self {
+        Self {
+            robot: RobotObs {
+                x_m: 0.0,
+                y_m: -4.0,
+                vx_mps: 0.0,
+                vy_mps: 0.0,
+                heading_rad: 1.5,
+            },
+            goal: GoalObs { x_m: 0.0, y_m: 4.0 },
+            humans: (0..humans)
+                .map(|i| HumanObs::walking(1.0 + i as f64, 0.0, -0.5, 0.0))
+                .collect(),
+            steps: 0,
+        }
+    }
+
     /// Decodes and checks a request: finite numbers, positive radii and speeds, at most
     /// [`MAX_HUMANS`] humans, a goal given whole.
     pub fn decode(bytes: &[u8]) -> Result<Self, RequestError> {
@@ -188,29 +225,14 @@ impl ActReply {
 mod tests {
     use super::*;
 
+    /// One person, of radius 0.3 m, 3 steps after the goal was set.
     fn request() -> ActRequest {
-        ActRequest {
-            robot: RobotObs {
-                x_m: 0.0,
-                y_m: -4.0,
-                vx_mps: 0.0,
-                vy_mps: 0.0,
-                heading_rad: 1.5,
-            },
-            goal: GoalObs { x_m: 0.0, y_m: 4.0 },
-            humans: vec![HumanObs {
-                x_m: 1.0,
-                y_m: 0.0,
-                vx_mps: -0.5,
-                vy_mps: 0.0,
-                radius_m: Some(0.3),
-                goal_x_m: None,
-                goal_y_m: None,
-                v_pref_mps: None,
-                standing: None,
-            }],
+        let mut r = ActRequest {
             steps: 3,
-        }
+            ..ActRequest::example(1)
+        };
+        r.humans[0].radius_m = Some(0.3);
+        r
     }
 
     #[test]

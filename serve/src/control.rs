@@ -699,58 +699,17 @@ impl Controller {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::msg::{encode, Header, People, Point, Pose, Quaternion};
+    use crate::fixtures::{goal, header, odometry_at as odom, shipped_model};
+    use crate::msg::{encode, People};
     use crate::people::{person_with_tags, PersonObs};
 
     fn policy() -> ServedPolicy {
-        ServedPolicy::load(
-            &std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
-                .join("../models/fsrl-env1-invisible-s0.fsrlm"),
-            None,
-        )
-        .unwrap()
+        ServedPolicy::load(&shipped_model(), None).unwrap()
     }
 
-    fn header(frame: &str, t_s: f64) -> Header {
-        Header {
-            stamp: Time::from_secs_f64(t_s),
-            frame_id: frame.into(),
-        }
-    }
-
-    fn odom(frame: &str, t_s: f64, y: f64) -> Vec<u8> {
-        let mut o = Odometry {
-            header: header(frame, t_s),
-            child_frame_id: "base_link".into(),
-            ..Odometry::default()
-        };
-        o.pose.pose.position.y = y;
-        o.pose.pose.orientation = Quaternion::from_yaw(std::f64::consts::FRAC_PI_2);
-        encode(&o).unwrap()
-    }
-
-    fn goal(frame: &str, t_s: f64) -> Vec<u8> {
-        encode(&PoseStamped {
-            header: header(frame, t_s),
-            pose: Pose {
-                position: Point {
-                    x: 0.0,
-                    y: 4.0,
-                    z: 0.0,
-                },
-                ..Pose::default()
-            },
-        })
-        .unwrap()
-    }
-
+    /// One person in `frame` stamped `t_s`, at (2, 0) walking at (−0.5, 0).
     fn people(frame: &str, t_s: f64) -> Vec<u8> {
-        let p = PersonObs::tracked(Vec2::new(2.0, 0.0), Vec2::new(-0.5, 0.0));
-        encode(&People {
-            header: header(frame, t_s),
-            people: vec![person_with_tags("a".into(), &p)],
-        })
-        .unwrap()
+        crate::fixtures::people(frame, t_s, 1)
     }
 
     /// On the odometry's clock (the stamps here are a simulator's).
@@ -904,23 +863,31 @@ mod tests {
         )
     }
 
-    #[test]
-    fn stamps_from_another_clock_or_the_future_are_refused_with_their_reason() {
+    /// On this computer's clock at `now_s`, arriving now: a goal set a minute ago, people
+    /// stamped `now_s` and odometry stamped `odometry_s` accepted and a decision made; the
+    /// policy, the controller and what the inputs arrived with.
+    fn driving_at(now_s: f64, odometry_s: f64) -> (ServedPolicy, Controller, Arrival) {
         let mut pol = policy();
         let mut c = on_system_clock(DEFAULT_MAX_PEOPLE);
-        let t0 = Instant::now();
-        let now_s = 1.7e9;
         let at = Arrival {
-            at: t0,
+            at: Instant::now(),
             unix_s: now_s,
         };
         c.on_goal(&goal("odom", now_s - 60.0), at);
         c.on_people(&people("odom", now_s), at);
         assert_eq!(
-            c.on_odometry(&odom("odom", now_s, -4.0), at),
+            c.on_odometry(&odom("odom", odometry_s, -4.0), at),
             Intake::Accepted
         );
-        assert_eq!(c.step(&mut pol, t0).stop, None);
+        assert_eq!(c.step(&mut pol, at.at).stop, None);
+        (pol, c, at)
+    }
+
+    #[test]
+    fn stamps_from_another_clock_or_the_future_are_refused_with_their_reason() {
+        let now_s = 1.7e9;
+        let (mut pol, mut c, at) = driving_at(now_s, now_s);
+        let t0 = at.at;
         // Odometry an hour ahead (another clock, or the future): refused, the robot stops
         // at once and says why.
         let r = c.on_odometry(&odom("odom", now_s + 3600.0, -4.0), at);
@@ -996,23 +963,11 @@ mod tests {
 
     #[test]
     fn an_input_stamped_long_before_it_arrived_turns_stale_by_its_stamp() {
-        let mut pol = policy();
-        let mut c = on_system_clock(DEFAULT_MAX_PEOPLE);
-        let t0 = Instant::now();
         let now_s = 1.7e9;
-        let at = Arrival {
-            at: t0,
-            unix_s: now_s,
-        };
-        c.on_goal(&goal("odom", now_s - 60.0), at);
-        c.on_people(&people("odom", now_s), at);
         // Stamped 0.8 s before it arrived: accepted (0.5 s stale + 0.5 s of tolerance), and
         // stale 0.2 s later, when its stamp is 1.0 s old, not 0.5 s after its arrival.
-        assert_eq!(
-            c.on_odometry(&odom("odom", now_s - 0.8, -4.0), at),
-            Intake::Accepted
-        );
-        assert_eq!(c.step(&mut pol, t0).stop, None);
+        let (mut pol, mut c, at) = driving_at(now_s, now_s - 0.8);
+        let t0 = at.at;
         // (1.7e9 s in f64 and a stamp's nanoseconds: within a microsecond)
         let stale_in = c.stale_at().unwrap() - t0;
         assert!(

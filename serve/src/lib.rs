@@ -23,6 +23,8 @@
 //! settings); opens its own zenoh session, as ROS 2 traffic is not fsrl's typed messages.
 
 pub mod control;
+#[doc(hidden)]
+pub mod fixtures;
 pub mod msg;
 pub mod node;
 pub mod people;

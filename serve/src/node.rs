@@ -1046,10 +1046,7 @@ mod tests {
             clock: Clock::Odometry,
             stale_periods: MAX_STALE_PERIODS,
             zenoh: transport::ZenohConfig::peer(vec![endpoint.clone()], vec![]),
-            ..ServeOptions::new(
-                std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
-                    .join("../models/fsrl-env1-invisible-s0.fsrlm"),
-            )
+            ..ServeOptions::new(crate::fixtures::shipped_model())
         };
         let inbox = Inbox::new();
         let (ready_tx, ready) = mpsc::channel();

@@ -300,42 +300,15 @@ pub(crate) fn answer(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use proto::serve::{ActReply, ActRequest, GoalObs, HumanObs, RobotObs as RobotIn};
+    use proto::serve::{ActReply, ActRequest};
 
     fn policy() -> ServedPolicy {
-        ServedPolicy::load(
-            &std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
-                .join("../models/fsrl-env1-invisible-s0.fsrlm"),
-            None,
-        )
-        .unwrap()
+        ServedPolicy::load(&crate::fixtures::shipped_model(), None).unwrap()
     }
 
+    /// The robot at (0, −4), its goal (0, 4), `humans` people ahead.
     fn request(humans: usize) -> ActRequest {
-        ActRequest {
-            robot: RobotIn {
-                x_m: 0.0,
-                y_m: -4.0,
-                vx_mps: 0.0,
-                vy_mps: 0.0,
-                heading_rad: 1.5,
-            },
-            goal: GoalObs { x_m: 0.0, y_m: 4.0 },
-            humans: (0..humans)
-                .map(|i| HumanObs {
-                    x_m: 1.0 + i as f64,
-                    y_m: 0.0,
-                    vx_mps: -0.5,
-                    vy_mps: 0.0,
-                    radius_m: None,
-                    goal_x_m: None,
-                    goal_y_m: None,
-                    v_pref_mps: None,
-                    standing: None,
-                })
-                .collect(),
-            steps: 0,
-        }
+        ActRequest::example(humans)
     }
 
     fn ask(pol: &mut ServedPolicy, r: &ActRequest) -> ActReply {

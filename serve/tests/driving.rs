@@ -10,55 +10,16 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{mpsc, Arc};
 use std::time::{Duration, Instant};
 
-use serve::msg::{
-    self, Header, Odometry, People, Point, Pose, PoseStamped, Quaternion, Time, Twist,
-};
-use serve::people::{person_with_tags, PersonObs};
+use serve::fixtures::{goal, odometry, shipped_model};
+use serve::msg::{self, Twist};
 use zenoh::{Session, Wait};
 
 /// The shipped model's control period.
 const PERIOD: Duration = Duration::from_millis(250);
 
-fn header(frame: &str, t_s: f64) -> Header {
-    Header {
-        stamp: Time::from_secs_f64(t_s),
-        frame_id: frame.into(),
-    }
-}
-
-fn goal(frame: &str, t_s: f64) -> Vec<u8> {
-    msg::encode(&PoseStamped {
-        header: header(frame, t_s),
-        pose: Pose {
-            position: Point {
-                x: 0.0,
-                y: 4.0,
-                z: 0.0,
-            },
-            ..Pose::default()
-        },
-    })
-    .unwrap()
-}
-
+/// One person in `odom` stamped `t_s`, at (2, 0) walking at (−0.5, 0).
 fn people(t_s: f64) -> Vec<u8> {
-    let p = PersonObs::tracked(sim::Vec2::new(2.0, 0.0), sim::Vec2::new(-0.5, 0.0));
-    msg::encode(&People {
-        header: header("odom", t_s),
-        people: vec![person_with_tags("a".into(), &p)],
-    })
-    .unwrap()
-}
-
-fn odometry(t_s: f64) -> Vec<u8> {
-    let mut o = Odometry {
-        header: header("odom", t_s),
-        child_frame_id: "base_link".into(),
-        ..Odometry::default()
-    };
-    o.pose.pose.position.y = -4.0;
-    o.pose.pose.orientation = Quaternion::from_yaw(std::f64::consts::FRAC_PI_2);
-    msg::encode(&o).unwrap()
+    serve::fixtures::people("odom", t_s, 1)
 }
 
 /// A peer of the server at `endpoint`.
@@ -92,10 +53,7 @@ impl Lockstep {
             clock: serve::Clock::Odometry,
             threads: 1,
             zenoh: transport::ZenohConfig::peer(vec![endpoint.clone()], vec![]),
-            ..serve::ServeOptions::new(
-                std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
-                    .join("../models/fsrl-env1-invisible-s0.fsrlm"),
-            )
+            ..serve::ServeOptions::new(shipped_model())
         };
         let inbox = serve::Inbox::new();
         let stop = inbox.stopper();
