@@ -49,17 +49,7 @@ fn request() -> Vec<u8> {
         },
         goal: GoalObs { x_m: 0.0, y_m: 4.0 },
         humans: (0..5)
-            .map(|i| HumanObs {
-                x_m: 1.0 + i as f64,
-                y_m: -1.0 + 0.5 * i as f64,
-                vx_mps: -0.5,
-                vy_mps: 0.0,
-                radius_m: None,
-                goal_x_m: None,
-                goal_y_m: None,
-                v_pref_mps: None,
-                standing: None,
-            })
+            .map(|i| HumanObs::walking(1.0 + i as f64, -1.0 + 0.5 * i as f64, -0.5, 0.0))
             .collect(),
         steps: 0,
     }
@@ -93,28 +83,49 @@ fn rss_watch(pid: u32, stop: Arc<AtomicBool>) -> std::thread::JoinHandle<f64> {
     })
 }
 
-/// Feeds the robot's inputs at 20 Hz (stamped now) until `odometry_stops`, then its people
-/// only; sends the instant its last odometry was put.
-fn robot_inputs(
-    robot: zenoh::Session,
+/// The robot's inputs fed at 20 Hz (stamped now) until its odometry stops, then its people
+/// only, until `stop`.
+struct RobotInputs {
     odometry_stops: Arc<AtomicBool>,
-    stop: Arc<AtomicBool>,
-    last_odometry: mpsc::Sender<Instant>,
-) -> std::thread::JoinHandle<()> {
-    std::thread::spawn(move || {
-        let mut last = None;
-        while !stop.load(Ordering::Relaxed) {
-            let t = now_s();
-            let _ = robot.put("people", people("odom", t, 5)).wait();
-            if !odometry_stops.load(Ordering::Relaxed) {
-                let _ = robot.put("odom", odometry(t)).wait();
-                last = Some(Instant::now());
-            } else if let Some(at) = last.take() {
-                let _ = last_odometry.send(at);
-            }
-            std::thread::sleep(Duration::from_millis(50));
+    last_odometry: mpsc::Receiver<Instant>,
+    thread: std::thread::JoinHandle<()>,
+}
+
+impl RobotInputs {
+    fn start(robot: zenoh::Session, stop: Arc<AtomicBool>) -> Self {
+        let odometry_stops = Arc::new(AtomicBool::new(false));
+        let (last_tx, last_odometry) = mpsc::channel();
+        let thread = {
+            let odometry_stops = odometry_stops.clone();
+            std::thread::spawn(move || {
+                let mut last = None;
+                while !stop.load(Ordering::Relaxed) {
+                    let t = now_s();
+                    let _ = robot.put("people", people("odom", t, 5)).wait();
+                    if !odometry_stops.load(Ordering::Relaxed) {
+                        let _ = robot.put("odom", odometry(t)).wait();
+                        last = Some(Instant::now());
+                    } else if let Some(at) = last.take() {
+                        let _ = last_tx.send(at);
+                    }
+                    std::thread::sleep(Duration::from_millis(50));
+                }
+            })
+        };
+        Self {
+            odometry_stops,
+            last_odometry,
+            thread,
         }
-    })
+    }
+
+    /// Stops the odometry (the people go on); the instant the last one was put.
+    fn stop_odometry(&self) -> Instant {
+        self.odometry_stops.store(true, Ordering::Relaxed);
+        self.last_odometry
+            .recv_timeout(Duration::from_secs(5))
+            .unwrap()
+    }
 }
 
 /// The first command satisfying `pred` received after `after`, within `within`.
@@ -152,14 +163,7 @@ fn under_a_query_and_people_flood_the_stop_goes_out_within_two_periods_and_memor
 
     let stop = Arc::new(AtomicBool::new(false));
     let rss = rss_watch(serve.pid(), stop.clone());
-    let odometry_stops = Arc::new(AtomicBool::new(false));
-    let (last_tx, last_rx) = mpsc::channel();
-    let inputs = robot_inputs(
-        robot.session.clone(),
-        odometry_stops.clone(),
-        stop.clone(),
-        last_tx,
-    );
+    let inputs = RobotInputs::start(robot.session.clone(), stop.clone());
 
     // 10,000 queries a second from one peer, 1,000 people messages a second from another.
     let replies = Arc::new(AtomicU64::new(0));
@@ -209,15 +213,14 @@ fn under_a_query_and_people_flood_the_stop_goes_out_within_two_periods_and_memor
     // odometry, not a zero command from before the first odometry arrived (a fresh-clone CI run
     // logged "no odometry received yet" at start-up, and the test read that one).
     serve.skip_log();
-    odometry_stops.store(true, Ordering::Relaxed);
-    let last = last_rx.recv_timeout(Duration::from_secs(5)).unwrap();
+    let last = inputs.stop_odometry();
     let stopped_at = first_after(&robot.cmd, last, Duration::from_secs(5), zero);
     std::thread::sleep(Duration::from_secs(2));
     stop.store(true, Ordering::Relaxed);
     let query_rate = queries.join().unwrap();
     let people_rate = crowd.join().unwrap();
     let max_rss = rss.join().unwrap();
-    inputs.join().unwrap();
+    inputs.thread.join().unwrap();
 
     let latency = stopped_at.map(|t| t - last);
     eprintln!(
@@ -544,14 +547,7 @@ fn askers_that_never_read_behind_a_router_cannot_hold_back_the_robots_inputs_or_
     robot.until("driving before the askers", || robot.fresh(), moving);
 
     let stop = Arc::new(AtomicBool::new(false));
-    let odometry_stops = Arc::new(AtomicBool::new(false));
-    let (last_tx, last_rx) = mpsc::channel();
-    let inputs = robot_inputs(
-        robot.session.clone(),
-        odometry_stops.clone(),
-        stop.clone(),
-        last_tx,
-    );
+    let inputs = RobotInputs::start(robot.session.clone(), stop.clone());
     let congestion = congestion_watch(router_port, stop.clone());
     let (mut askers, asker_lines) = stuck_askers(&router);
     // 4 s of both askers stuck while the robot's inputs come fresh: no stale stop.
@@ -564,11 +560,10 @@ fn askers_that_never_read_behind_a_router_cannot_hold_back_the_robots_inputs_or_
         }
     }
     // Then the odometry stops: the robot receives the zero command in time.
-    odometry_stops.store(true, Ordering::Relaxed);
-    let last = last_rx.recv_timeout(Duration::from_secs(5)).unwrap();
+    let last = inputs.stop_odometry();
     let stopped_at = first_after(&robot.cmd, last, Duration::from_secs(5), zero);
     stop.store(true, Ordering::Relaxed);
-    inputs.join().unwrap();
+    inputs.thread.join().unwrap();
     let (unread, unsent) = congestion.join().unwrap();
     drop(askers.0.stdin.take());
     let asked = asker_lines

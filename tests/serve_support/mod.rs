@@ -10,9 +10,8 @@ use std::process::{Command, Stdio};
 use std::sync::mpsc;
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
-use serve::msg::{
-    self, Header, Odometry, People, Point, Pose, PoseStamped, Quaternion, Time, Twist,
-};
+pub use serve::fixtures::{goal, odometry, people};
+use serve::msg::{self, Twist};
 use zenoh::Wait;
 
 use crate::net_support::Reaped;
@@ -146,60 +145,6 @@ pub fn session(endpoint: &str) -> zenoh::Session {
         .to_zenoh(8 << 20)
         .unwrap();
     zenoh::open(cfg).wait().unwrap()
-}
-
-pub fn header(frame: &str, t_s: f64) -> Header {
-    Header {
-        stamp: Time::from_secs_f64(t_s),
-        frame_id: frame.into(),
-    }
-}
-
-/// Odometry at (0, −4) heading +y, stamped `t_s`.
-pub fn odometry(t_s: f64) -> Vec<u8> {
-    let mut o = Odometry {
-        header: header("odom", t_s),
-        child_frame_id: "base_link".into(),
-        ..Odometry::default()
-    };
-    o.pose.pose.position.y = -4.0;
-    o.pose.pose.orientation = Quaternion::from_yaw(std::f64::consts::FRAC_PI_2);
-    msg::encode(&o).unwrap()
-}
-
-/// `n` people in `frame` stamped `t_s`, walking across the robot's way.
-pub fn people(frame: &str, t_s: f64, n: usize) -> Vec<u8> {
-    let m = People {
-        header: header(frame, t_s),
-        people: (0..n)
-            .map(|i| {
-                serve::people::person_with_tags(
-                    i.to_string(),
-                    &serve::people::PersonObs::tracked(
-                        sim::Vec2::new(2.0 + 0.7 * i as f64, (i % 3) as f64),
-                        sim::Vec2::new(-0.5, 0.0),
-                    ),
-                )
-            })
-            .collect(),
-    };
-    msg::encode(&m).unwrap()
-}
-
-/// The goal (0, 4) in `frame` stamped `t_s`.
-pub fn goal(frame: &str, t_s: f64) -> Vec<u8> {
-    msg::encode(&PoseStamped {
-        header: header(frame, t_s),
-        pose: Pose {
-            position: Point {
-                x: 0.0,
-                y: 4.0,
-                z: 0.0,
-            },
-            ..Pose::default()
-        },
-    })
-    .unwrap()
 }
 
 /// A robot on the bridge keys: puts inputs, receives `cmd_vel` with the instant it came.
