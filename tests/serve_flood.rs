@@ -249,7 +249,10 @@ fn under_a_query_and_people_flood_the_stop_goes_out_within_two_periods_and_memor
             .contains("odometry is stale"),
         "the first stop is not for stale odometry"
     );
-    serve.wait_log("query refused", Duration::from_secs(5));
+    // The refusals are counted in the exit summary (below). Not waited for in the log: it says
+    // them at powers of two of the count, and the lines before the odometry stopped were passed
+    // over, so the next one came after 5 s or not, by the machine's speed (a streak of
+    // tools/test.sh runs failed here).
     let status = serve.terminate();
     assert!(status.success(), "{status:?}");
     let summary = serve.wait_log("stopped", Duration::from_secs(5));
