@@ -25,9 +25,12 @@ pub mod config;
 pub mod env;
 pub mod episode;
 pub mod geom;
+pub mod map;
 pub mod orca;
 pub mod reward;
 pub mod robot;
+pub mod rvo;
+pub mod scan;
 pub mod scenario;
 pub mod scenes;
 

@@ -1,0 +1,1 @@
+//! Static maps: validated polygons, walls and bounding walls (issue 53).
