@@ -55,6 +55,7 @@ fn orca_params() -> OrcaParams {
         max_neighbors: 10,
         time_horizon_s: 5.0,
         time_step_s: 0.25,
+        time_horizon_obst_s: 5.0,
     }
 }
 

@@ -72,6 +72,7 @@ fn orca_params(cfg: &SimConfig) -> OrcaParams {
         max_neighbors: cfg.orca.max_neighbors,
         time_horizon_s: cfg.orca.time_horizon_s as f32,
         time_step_s: cfg.dt_s as f32,
+        time_horizon_obst_s: cfg.orca.time_horizon_obst_s as f32,
     }
 }
 

@@ -1,10 +1,13 @@
 //! ORCA (optimal reciprocal collision avoidance) with the semantics of the RVO2 library.
 //!
-//! This is a port of RVO2's `Agent::computeNewVelocity` for agents without obstacles, written on
-//! nalgebra in **float32** with RVO2's order of operations, so that one step from a given state
-//! reproduces RVO2's velocities (checked against `testdata/orca_ref` to 1e-4 m/s). Neighbour
+//! This is a port of RVO2 v2.0.3's `Agent::computeNewVelocity`, static obstacles included
+//! ([`crate::rvo::ObstacleSet`]), written on nalgebra in **float32** with RVO2's order of
+//! operations, so that it reproduces RVO2's velocities bit for bit (checked against
+//! `testdata/orca_ref` and `testdata/orca_ref_obstacles` by replaying whole runs). Neighbour
 //! selection keeps the `max_neighbors` closest agents with squared centre distance strictly below
-//! `neighbor_dist²`, sorted by distance, as RVO2's k-d tree query does.
+//! `neighbor_dist²`, sorted by distance, as RVO2's k-d tree query does (in index order, which is
+//! the tree's order up to RVO2's leaf size of ten agents; [`crate::rvo::Simulator`] has the tree).
+//! Obstacle lines come first and stay hard in the third linear program, as in RVO2.
 //!
 //! One extension over RVO2: per-pair **avoidance responsibility**. RVO2 always takes half of the
 //! avoidance (reciprocal). Here an agent whose [`OrcaAgent::reciprocal`] flag is false (a standing
@@ -14,8 +17,9 @@
 //! No allocation happens per call once the solver's scratch buffers have grown to the crowd size.
 
 use crate::geom::Vec2f;
+use crate::rvo::ObstacleSet;
 
-const RVO_EPSILON: f32 = 0.00001;
+pub(crate) const RVO_EPSILON: f32 = 0.00001;
 
 /// Parameters shared by every agent of one simulation (RVO2's simulator defaults).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -28,6 +32,10 @@ pub struct OrcaParams {
     pub time_horizon_s: f32,
     /// Simulation step, used for the already-overlapping case.
     pub time_step_s: f32,
+    /// Time horizon of the obstacles' velocity obstacles (RVO2's `timeHorizonObst`); also sets
+    /// the obstacle neighbour range, `time_horizon_obst_s · max_speed + radius`. Unused without
+    /// obstacles.
+    pub time_horizon_obst_s: f32,
 }
 
 /// One agent as ORCA sees it.
@@ -47,35 +55,35 @@ pub struct OrcaAgent {
 }
 
 #[derive(Debug, Clone, Copy, Default)]
-struct Line {
-    point: Vec2f,
-    direction: Vec2f,
+pub(crate) struct Line {
+    pub(crate) point: Vec2f,
+    pub(crate) direction: Vec2f,
 }
 
 #[inline]
-fn det(a: Vec2f, b: Vec2f) -> f32 {
+pub(crate) fn det(a: Vec2f, b: Vec2f) -> f32 {
     a.x * b.y - a.y * b.x
 }
 
 #[inline]
-fn dot(a: Vec2f, b: Vec2f) -> f32 {
+pub(crate) fn dot(a: Vec2f, b: Vec2f) -> f32 {
     a.x * b.x + a.y * b.y
 }
 
 #[inline]
-fn abs_sq(a: Vec2f) -> f32 {
+pub(crate) fn abs_sq(a: Vec2f) -> f32 {
     dot(a, a)
 }
 
 /// RVO2's `Vector2::operator/`: multiply by the reciprocal.
 #[inline]
-fn div(a: Vec2f, s: f32) -> Vec2f {
+pub(crate) fn div(a: Vec2f, s: f32) -> Vec2f {
     let inv = 1.0f32 / s;
     Vec2f::new(a.x * inv, a.y * inv)
 }
 
 #[inline]
-fn normalize(a: Vec2f) -> Vec2f {
+pub(crate) fn normalize(a: Vec2f) -> Vec2f {
     div(a, abs_sq(a).sqrt())
 }
 
@@ -84,6 +92,7 @@ fn normalize(a: Vec2f) -> Vec2f {
 pub struct Orca {
     params: OrcaParams,
     neighbors: Vec<(f32, usize)>,
+    obstacle_neighbors: Vec<(f32, usize)>,
     lines: Vec<Line>,
     proj_lines: Vec<Line>,
 }
@@ -93,6 +102,7 @@ impl Orca {
         Self {
             params,
             neighbors: Vec::with_capacity(params.max_neighbors + 1),
+            obstacle_neighbors: Vec::new(),
             lines: Vec::with_capacity(params.max_neighbors),
             proj_lines: Vec::with_capacity(params.max_neighbors),
         }
@@ -105,6 +115,55 @@ impl Orca {
     /// The new velocity of `agents[ego]` given every agent in `agents` as a potential neighbour.
     pub fn new_velocity(&mut self, ego: usize, agents: &[OrcaAgent]) -> Vec2f {
         self.compute_neighbors(ego, agents);
+        self.obstacle_neighbors.clear();
+        self.solve(ego, agents, None)
+    }
+
+    /// The new velocity of `agents[ego]` among `agents` and the static obstacles of `obstacles`
+    /// (RVO2's obstacle neighbours, then its agent neighbours).
+    pub fn new_velocity_among(
+        &mut self,
+        ego: usize,
+        agents: &[OrcaAgent],
+        obstacles: &ObstacleSet,
+    ) -> Vec2f {
+        self.find_obstacle_neighbors(&agents[ego], obstacles);
+        self.compute_neighbors(ego, agents);
+        self.solve(ego, agents, Some(obstacles))
+    }
+
+    /// RVO2's `Agent::computeNeighbors` for obstacles: every obstacle edge within
+    /// `time_horizon_obst · max_speed + radius`, in the obstacle tree's order, sorted by distance.
+    pub(crate) fn find_obstacle_neighbors(&mut self, me: &OrcaAgent, obstacles: &ObstacleSet) {
+        self.obstacle_neighbors.clear();
+        let range = self.params.time_horizon_obst_s * me.max_speed_mps + me.radius_m;
+        obstacles.neighbors(me.position, range * range, &mut self.obstacle_neighbors);
+    }
+
+    /// The agent neighbours' buffer, for a caller that finds them itself (RVO2's k-d tree).
+    pub(crate) fn neighbors_mut(&mut self) -> &mut Vec<(f32, usize)> {
+        &mut self.neighbors
+    }
+
+    /// RVO2's `Agent::computeNewVelocity` from the neighbours already found.
+    pub(crate) fn solve(
+        &mut self,
+        ego: usize,
+        agents: &[OrcaAgent],
+        obstacles: Option<&ObstacleSet>,
+    ) -> Vec2f {
+        self.lines.clear();
+        if let Some(set) = obstacles {
+            for &(_, edge) in &self.obstacle_neighbors {
+                set.push_line(
+                    edge,
+                    &agents[ego],
+                    self.params.time_horizon_obst_s,
+                    &mut self.lines,
+                );
+            }
+        }
+        let num_obst_lines = self.lines.len();
         self.build_lines(ego, agents);
         let me = &agents[ego];
         let mut result = Vec2f::zeros();
@@ -118,6 +177,7 @@ impl Orca {
         if line_fail < self.lines.len() {
             linear_program3(
                 &self.lines,
+                num_obst_lines,
                 line_fail,
                 me.max_speed_mps,
                 &mut result,
@@ -158,7 +218,6 @@ impl Orca {
     }
 
     fn build_lines(&mut self, ego: usize, agents: &[OrcaAgent]) {
-        self.lines.clear();
         let me = &agents[ego];
         let inv_time_horizon = 1.0f32 / self.params.time_horizon_s;
         for &(_, j) in &self.neighbors {
@@ -313,6 +372,7 @@ fn linear_program2(
 
 fn linear_program3(
     lines: &[Line],
+    num_obst_lines: usize,
     begin_line: usize,
     radius: f32,
     result: &mut Vec2f,
@@ -321,9 +381,10 @@ fn linear_program3(
     let mut distance = 0.0f32;
     for i in begin_line..lines.len() {
         if det(lines[i].direction, lines[i].point - *result) > distance {
-            // The result does not satisfy line i.
+            // The result does not satisfy line i. Obstacle lines stay hard.
             proj_lines.clear();
-            for j in 0..i {
+            proj_lines.extend_from_slice(&lines[..num_obst_lines]);
+            for j in num_obst_lines..i {
                 let determinant = det(lines[i].direction, lines[j].direction);
                 let point = if determinant.abs() <= RVO_EPSILON {
                     if dot(lines[i].direction, lines[j].direction) > 0.0 {
@@ -361,6 +422,7 @@ mod tests {
             max_neighbors: 10,
             time_horizon_s: 5.0,
             time_step_s: 0.25,
+            time_horizon_obst_s: 5.0,
         }
     }
 
