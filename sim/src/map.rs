@@ -492,15 +492,17 @@ impl StaticMap {
     }
 
     /// Whether a disc of radius `radius_m` can travel from `start` to `goal`, by a coarse
-    /// flood fill over a square grid of `cell_m` cells (4-connected; a cell is passable when
-    /// its centre [`is_free`](Self::is_free)). The grid covers the map's segments, the start
-    /// and the goal, padded by `radius_m` plus two cells so that the open floor around the
-    /// obstacles is included; cells are tested only as the fill reaches them. The start (goal)
-    /// joins the grid through any of the 3 × 3 cells around it whose centre it sees with
-    /// clearance `radius_m`.
+    /// flood fill over a square grid of `cell_m` cells (4-connected). A cell is passable when
+    /// a disc of radius `radius_m + cell_m / 2` is [free](Self::is_free) at its centre, so
+    /// that the step between two passable neighbours is clear for the disc. The grid covers
+    /// the map's segments, the start and the goal, padded by `radius_m` plus two cells so
+    /// that the open floor around the obstacles is included; cells are tested only as the
+    /// fill reaches them. The start (goal) joins the grid through any passable cell of the
+    /// 3 × 3 around it whose centre it reaches in a straight line without contact.
     ///
-    /// The answer is approximate: a gap narrower than about 2·`radius_m` plus a cell may be
-    /// judged closed. False when the start or the goal is not free. Refused (an error) for a
+    /// A `true` is certain (a contact-free path exists); a `false` may be wrong for a gap
+    /// narrower than about 2·`radius_m` + 2·`cell_m`. False when the start or the goal is not
+    /// free. Refused (an error) for a
     /// non-positive or non-finite `cell_m`, a negative or non-finite `radius_m`, a non-finite
     /// point, or a grid of more than [`MAX_REACHABLE_CELLS`] cells (checked only when the
     /// straight line from start to goal is blocked and the grid is needed).
@@ -536,7 +538,7 @@ impl StaticMap {
         if !self.is_free(start, radius_m) || !self.is_free(goal, radius_m) {
             return Ok(false);
         }
-        if self.swept_clearance_m(start, goal) >= radius_m {
+        if self.clear_path(start, goal, radius_m) {
             return Ok(true);
         }
         let mut lo = start.inf(&goal);
@@ -551,7 +553,7 @@ impl StaticMap {
         let nx_f = (extent.x / cell_m).ceil();
         let ny_f = (extent.y / cell_m).ceil();
         let cells_f = nx_f * ny_f;
-        if !(cells_f <= MAX_REACHABLE_CELLS as f64) {
+        if cells_f.is_nan() || cells_f > MAX_REACHABLE_CELLS as f64 {
             return Err(MapError::GridTooLarge {
                 cells: if cells_f.is_finite() {
                     cells_f as u64
@@ -565,6 +567,7 @@ impl StaticMap {
         let centre = |i: usize, j: usize| {
             origin + Vec2::new((i as f64 + 0.5) * cell_m, (j as f64 + 0.5) * cell_m)
         };
+        let cell_radius_m = radius_m + cell_m / 2.0;
         // 0 = untested, 1 = blocked, 2 = reached.
         const UNTESTED: u8 = 0;
         const BLOCKED: u8 = 1;
@@ -578,7 +581,7 @@ impl StaticMap {
         let in_grid = |i: i64, j: i64| i >= 0 && j >= 0 && (i as usize) < nx && (j as usize) < ny;
         let joins = |p: Vec2, i: usize, j: usize| {
             let c = centre(i, j);
-            self.is_free(c, radius_m) && self.swept_clearance_m(p, c) >= radius_m
+            self.is_free(c, cell_radius_m) && self.clear_path(p, c, radius_m)
         };
         let mut stack = Vec::new();
         for (i, j) in neighbourhood(start) {
@@ -603,7 +606,7 @@ impl StaticMap {
                 }
                 let k = nj * nx + ni;
                 if state[k] == UNTESTED {
-                    if self.is_free(centre(ni, nj), radius_m) {
+                    if self.is_free(centre(ni, nj), cell_radius_m) {
                         state[k] = REACHED;
                         stack.push((ni, nj));
                     } else {
@@ -617,6 +620,15 @@ impl StaticMap {
                 && state[j as usize * nx + i as usize] == REACHED
                 && joins(goal, i as usize, j as usize)
         }))
+    }
+}
+
+impl StaticMap {
+    /// Whether a disc of radius `radius_m` moves from `p0` to `p1` without contact (touching
+    /// counts as contact, also for a zero radius).
+    fn clear_path(&self, p0: Vec2, p1: Vec2, radius_m: f64) -> bool {
+        let clearance = self.swept_clearance_m(p0, p1);
+        clearance >= radius_m && clearance > 0.0
     }
 }
 
@@ -1074,6 +1086,12 @@ pub(crate) mod tests {
         let goal = v(2.0, 1.5);
         assert_eq!(doorway(1.0).reachable(start, goal, 0.3, 0.05), Ok(true));
         assert_eq!(doorway(0.5).reachable(start, goal, 0.3, 0.05), Ok(false));
+        // A closed cross wall stops even a point.
+        assert_eq!(doorway(0.0).reachable(start, goal, 0.0, 0.05), Ok(false));
+        assert_eq!(
+            doorway(0.0).reachable(v(-2.0, 0.0), v(2.0, 0.0), 0.0, 0.05),
+            Ok(false)
+        );
         // The narrow door still lets a small disc through.
         assert_eq!(doorway(0.5).reachable(start, goal, 0.1, 0.05), Ok(true));
         // A goal inside the box, or outside the room, is not reachable.

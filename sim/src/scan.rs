@@ -305,16 +305,16 @@ pub fn sector_nearest(
     sectors: usize,
     max_range_m: f64,
 ) -> Vec<Option<Vec2>> {
-    let mut best: Vec<Option<(f64, Vec2)>> = vec![None; sectors];
     if sectors == 0 {
         return Vec::new();
     }
+    let mut best: Vec<Option<(f64, Vec2)>> = vec![None; sectors];
     let w = sector_width_rad(sectors);
     let max2 = max_range_m * max_range_m;
     for &p in points {
         let d = p - pose;
         let d2 = d.norm_squared();
-        if !(d2 <= max2) {
+        if d2.is_nan() || d2 > max2 {
             continue;
         }
         let rel = d.y.atan2(d.x) - heading_rad + w / 2.0;
