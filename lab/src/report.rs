@@ -788,6 +788,7 @@ mod tests {
             timeout_steps: 100,
             abs_rotation_rad: 20.0,
             return_sum: 5.0,
+            ..Aggregate::default()
         };
         let good = SettingReport::new("env2-visible", &a);
         assert_eq!(good.check(), Ok(()));

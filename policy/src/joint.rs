@@ -17,6 +17,18 @@ pub struct HumanObs {
     pub radius_m: f64,
 }
 
+impl HumanObs {
+    /// A static obstacle point as the networks see it: an entity that never moves, of radius 0
+    /// (people have a radius), so that walls need no change to the networks (issue 53).
+    pub fn obstacle(position: Vec2) -> Self {
+        Self {
+            position,
+            velocity: Vec2::zeros(),
+            radius_m: 0.0,
+        }
+    }
+}
+
 impl From<&HumanState> for HumanObs {
     fn from(h: &HumanState) -> Self {
         Self {

@@ -12,7 +12,7 @@
 //! [`Lookahead::with_terminal_previews`] it is scored `R(s, a)` alone, as the training target
 //! `y = r` treats the last step of an episode (the Env 3 experiment, `docs/REPRODUCTION.md`).
 
-use sim::{evaluate_step, Env, HumanState, RobotState, Vec2};
+use sim::{evaluate_step_among, Env, HumanState, RobotState, Vec2};
 
 use crate::joint::{featurize_into, HumanObs, HumanOrder};
 use crate::{PolicyError, Scratch, StateBatch, ValueNet};
@@ -47,6 +47,8 @@ pub struct Lookahead {
     next_humans: Vec<HumanState>,
     velocities: Vec<Vec2>,
     obs: Vec<HumanObs>,
+    /// The static obstacle points seen from the current pose (walled settings only).
+    obstacles: Vec<Vec2>,
     order_buf: Vec<(f64, usize)>,
     discount_last: f64,
     terminal_previews: bool,
@@ -103,6 +105,7 @@ impl Lookahead {
             next_humans: Vec::new(),
             velocities: Vec::new(),
             obs: Vec::new(),
+            obstacles: Vec::new(),
             order_buf: Vec::new(),
             discount_last: 0.0,
             terminal_previews: false,
@@ -203,6 +206,11 @@ impl Lookahead {
         }
         self.obs.clear();
         self.obs.extend(self.next_humans.iter().map(HumanObs::from));
+        // Walls are static: the points seen now stand for every candidate's next state.
+        self.obstacles.clear();
+        env.obstacle_points_into(&mut self.obstacles);
+        self.obs
+            .extend(self.obstacles.iter().map(|&p| HumanObs::obstacle(p)));
 
         self.batch.clear();
         self.rewards.clear();
@@ -216,8 +224,9 @@ impl Lookahead {
                         .action_set()
                         .get(a)
                         .expect("index within the action set");
-                    evaluate_step(
+                    evaluate_step_among(
                         env.config(),
+                        env.wall_map(),
                         &robot,
                         action,
                         env.humans(),
@@ -330,6 +339,8 @@ impl Lookahead {
             velocity: h.velocity,
             radius_m: h.radius_m,
         }));
+        plan.obs
+            .extend(self.obstacles.iter().map(|&p| HumanObs::obstacle(p)));
 
         plan.batch.clear();
         plan.rewards.clear();
@@ -345,8 +356,9 @@ impl Lookahead {
                     .action_set()
                     .get(b)
                     .expect("index within the action set");
-                let eval = evaluate_step(
+                let eval = evaluate_step_among(
                     env.config(),
+                    env.wall_map(),
                     &robot,
                     action,
                     &self.next_humans,
@@ -439,7 +451,7 @@ mod tests {
     use super::*;
     use crate::joint::HumanOrder;
     use crate::{NetConfig, ValueNet};
-    use sim::{Setting, SimConfig};
+    use sim::{evaluate_step, Setting, SimConfig};
 
     /// Walks ORCA episodes of env3-invisible (the robot meets the cup) and compares both
     /// scorings on every state: equal for candidates that continue the episode, the reward

@@ -18,10 +18,16 @@ pub struct JointState {
 }
 
 impl JointState {
+    /// What the robot observes in `env`: the humans, then (among walls) the static obstacle
+    /// points of its sensor as entities of radius 0 ([`HumanObs::obstacle`]).
     pub fn observe(env: &Env) -> Self {
+        let mut humans: Vec<HumanObs> = env.humans().iter().map(HumanObs::from).collect();
+        let mut points = Vec::new();
+        env.obstacle_points_into(&mut points);
+        humans.extend(points.into_iter().map(HumanObs::obstacle));
         Self {
             robot: *env.robot(),
-            humans: env.humans().iter().map(HumanObs::from).collect(),
+            humans,
         }
     }
 }
@@ -164,6 +170,7 @@ pub fn rollout(
         return Err(e);
     }
     states.push(JointState::observe(env));
+    let entities = states[0].humans.len();
     Ok(EpisodeData {
         setting: env.setting(),
         seed,
@@ -171,7 +178,14 @@ pub fn rollout(
         actions,
         rewards: episode.steps.iter().map(|s| s.eval.reward).collect(),
         closest_m: episode.steps.iter().map(|s| s.eval.closest_m).collect(),
-        standing: env.humans().iter().map(|h| h.standing).collect(),
+        // Obstacle entities (after the humans) never move.
+        standing: env
+            .humans()
+            .iter()
+            .map(|h| h.standing)
+            .chain(std::iter::repeat(true))
+            .take(entities)
+            .collect(),
         outcome: episode.summary.outcome,
         epsilon,
         policy_version,

@@ -293,6 +293,8 @@ pub fn from_batch(
         return_sum: rewards.iter().map(|r| r.total).sum(),
         min_closest_m: closest_m.iter().copied().fold(f64::INFINITY, f64::min),
         min_danger_m: f64::INFINITY,
+        wall_collision: false,
+        frozen: false,
     };
     for t in 0..t_len {
         let (a, z) = (&states[t].robot, &states[t + 1].robot);
@@ -305,6 +307,8 @@ pub fn from_batch(
             summary.min_danger_m = summary.min_danger_m.min(closest_m[t]);
         }
     }
+    let positions: Vec<Vec2> = states.iter().map(|s| s.robot.position).collect();
+    summary.frozen = sim::episode::is_frozen(outcome, &positions, cfg.dt_s);
     let ep = EpisodeData {
         setting,
         seed: b.seed,

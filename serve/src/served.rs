@@ -330,6 +330,7 @@ impl ServedPolicy {
                     standing: p.standing.unwrap_or(false),
                 })
                 .collect(),
+            walls: None,
         }
     }
 

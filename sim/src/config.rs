@@ -18,6 +18,24 @@ pub enum EnvKind {
     Env2,
     /// Dynamic humans plus two fixed groups of standing humans that form traps.
     Env3,
+    /// A corridor about 2 m wide with people walking both ways (`[sim.walls.corridor]`).
+    Corridor,
+    /// A hall cut by a cross wall with a 1 m door (`[sim.walls.doorway]`).
+    Doorway,
+    /// A walled room with random rectangular furniture and 5–8 people (`[sim.walls.room]`).
+    Room,
+    /// Circle crossing around static pillars (`[sim.walls.pillars]`).
+    Pillars,
+}
+
+impl EnvKind {
+    /// Whether the environment has static obstacles.
+    pub fn is_walled(self) -> bool {
+        matches!(
+            self,
+            EnvKind::Corridor | EnvKind::Doorway | EnvKind::Room | EnvKind::Pillars
+        )
+    }
 }
 
 /// Env 3's fixed standing humans: a cup of three, concave toward the robot's start, with gaps
@@ -49,6 +67,23 @@ impl Setting {
         Setting::new(EnvKind::Env3, true),
     ];
 
+    /// The settings with static obstacles (issue 53), beyond the paper's six. The corridor and the
+    /// doorway exist only with the robot visible: in a 2 m corridor or a 1 m door, people who
+    /// cannot see the robot walk into it whatever it does.
+    pub const WALLED: [Setting; 6] = [
+        Setting::new(EnvKind::Corridor, true),
+        Setting::new(EnvKind::Doorway, true),
+        Setting::new(EnvKind::Room, false),
+        Setting::new(EnvKind::Room, true),
+        Setting::new(EnvKind::Pillars, false),
+        Setting::new(EnvKind::Pillars, true),
+    ];
+
+    /// Every setting: the paper's six, then the walled ones.
+    pub fn every() -> impl Iterator<Item = Setting> {
+        Setting::ALL.into_iter().chain(Setting::WALLED)
+    }
+
     pub const fn new(env: EnvKind, robot_visible: bool) -> Self {
         Self { env, robot_visible }
     }
@@ -62,15 +97,26 @@ impl Setting {
             (EnvKind::Env1, true) => "env1-visible",
             (EnvKind::Env2, true) => "env2-visible",
             (EnvKind::Env3, true) => "env3-visible",
+            (EnvKind::Corridor, _) => "corridor",
+            (EnvKind::Doorway, _) => "doorway",
+            (EnvKind::Room, false) => "room-invisible",
+            (EnvKind::Room, true) => "room-visible",
+            (EnvKind::Pillars, false) => "pillars-invisible",
+            (EnvKind::Pillars, true) => "pillars-visible",
         }
     }
 
-    /// Index in [`Setting::ALL`].
+    /// Index in [`Setting::every`]: the paper's six are 0–5 (their index in [`Setting::ALL`]),
+    /// the walled ones follow.
     pub fn index(&self) -> usize {
-        Setting::ALL
-            .iter()
-            .position(|s| s == self)
-            .expect("ALL lists every setting")
+        Setting::every()
+            .position(|s| s == *self)
+            .expect("every() lists every setting")
+    }
+
+    /// Whether this is one of the paper's six settings.
+    pub fn is_paper(&self) -> bool {
+        !self.env.is_walled()
     }
 }
 
@@ -82,15 +128,13 @@ impl fmt::Display for Setting {
 
 /// An unknown setting name.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
-#[error("unknown setting `{0}`; expected one of env1-invisible, env2-invisible, env3-invisible, env1-visible, env2-visible, env3-visible")]
+#[error("unknown setting `{0}`; expected one of env1-invisible, env2-invisible, env3-invisible, env1-visible, env2-visible, env3-visible, corridor, doorway, room-invisible, room-visible, pillars-invisible, pillars-visible")]
 pub struct UnknownSetting(pub String);
 
 impl FromStr for Setting {
     type Err = UnknownSetting;
     fn from_str(s: &str) -> Result<Self, Self::Err> {
-        Setting::ALL
-            .iter()
-            .copied()
+        Setting::every()
             .find(|setting| setting.name() == s)
             .ok_or_else(|| UnknownSetting(s.to_string()))
     }
@@ -452,6 +496,10 @@ pub struct SimConfig {
     pub orca: OrcaConfig,
     pub actions: ActionConfig,
     pub reward: RewardConfig,
+    /// The walled settings' layouts. Left out of a serialised config when it holds the defaults,
+    /// so that every config, model and report written before walls existed is byte-identical.
+    #[serde(skip_serializing_if = "WallsConfig::is_default")]
+    pub walls: WallsConfig,
 }
 
 impl Default for SimConfig {
@@ -465,6 +513,230 @@ impl Default for SimConfig {
             orca: OrcaConfig::default(),
             actions: ActionConfig::default(),
             reward: RewardConfig::default(),
+            walls: WallsConfig::default(),
+        }
+    }
+}
+
+/// The walled settings' layouts (`[sim.walls.*]`). Lengths in metres, in the world frame where
+/// the robot drives from `robot.start_m` to `robot.goal_m` (by default (0, −4) to (0, 4)).
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct WallsConfig {
+    pub corridor: CorridorConfig,
+    pub doorway: DoorwayConfig,
+    pub room: RoomConfig,
+    pub pillars: PillarsConfig,
+    pub roadmap: RoadmapConfig,
+    pub sensor: SensorConfig,
+}
+
+/// How the robot sees static obstacles: in each of `sectors` equal angular sectors around it
+/// (sector 0 straight ahead), the nearest obstacle point within `range_m`; an empty sector is
+/// a point at `range_m` on the sector's centre line (a range sensor's "no return"). The same
+/// points come from a map ([`crate::scan::map_sector_nearest`]) or a laser scan
+/// ([`crate::scan::sector_nearest`]); the value networks see each as a static entity of radius 0.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct SensorConfig {
+    pub sectors: usize,
+    pub range_m: f64,
+}
+
+impl Default for SensorConfig {
+    fn default() -> Self {
+        Self {
+            sectors: 12,
+            range_m: 4.0,
+        }
+    }
+}
+
+impl WallsConfig {
+    pub fn is_default(&self) -> bool {
+        *self == WallsConfig::default()
+    }
+
+    fn check(&self, c: &mut Checker) {
+        let range = |c: &mut Checker, name: &str, lo: usize, hi: usize| {
+            if lo > hi {
+                c.0.push(format!(
+                    "walls.{name}_min ({lo}) must not exceed walls.{name}_max ({hi})"
+                ));
+            }
+        };
+        let k = &self.corridor;
+        c.positive("walls.corridor.width_m", k.width_m);
+        c.positive("walls.corridor.length_m", k.length_m);
+        let d = &self.doorway;
+        c.positive("walls.doorway.hall_width_m", d.hall_width_m);
+        c.positive("walls.doorway.length_m", d.length_m);
+        c.positive("walls.doorway.door_width_m", d.door_width_m);
+        if d.door_width_m.is_finite()
+            && d.hall_width_m.is_finite()
+            && d.door_width_m >= d.hall_width_m
+        {
+            c.0.push(format!(
+                "walls.doorway.door_width_m ({}) must be smaller than walls.doorway.hall_width_m ({})",
+                d.door_width_m, d.hall_width_m
+            ));
+        }
+        let r = &self.room;
+        c.positive("walls.room.side_m", r.side_m);
+        range(c, "room.people", r.people_min, r.people_max);
+        range(c, "room.furniture", r.furniture_min, r.furniture_max);
+        c.positive(
+            "walls.room.furniture_half_side_min_m",
+            r.furniture_half_side_min_m,
+        );
+        c.positive(
+            "walls.room.furniture_half_side_max_m",
+            r.furniture_half_side_max_m,
+        );
+        if r.furniture_half_side_min_m > r.furniture_half_side_max_m {
+            c.0.push(
+                "walls.room.furniture_half_side_min_m must not exceed furniture_half_side_max_m"
+                    .into(),
+            );
+        }
+        c.non_negative("walls.room.furniture_clearance_m", r.furniture_clearance_m);
+        c.non_negative("walls.room.min_trip_m", r.min_trip_m);
+        let p = &self.pillars;
+        range(c, "pillars.pillars", p.pillars_min, p.pillars_max);
+        c.non_negative("walls.pillars.centre_radius_m", p.centre_radius_m);
+        c.non_negative("walls.pillars.spacing_m", p.spacing_m);
+        c.positive("walls.pillars.size_min_m", p.size_min_m);
+        c.positive("walls.pillars.size_max_m", p.size_max_m);
+        if p.size_min_m > p.size_max_m {
+            c.0.push("walls.pillars.size_min_m must not exceed walls.pillars.size_max_m".into());
+        }
+        c.non_negative(
+            "walls.roadmap.corner_offset_m",
+            self.roadmap.corner_offset_m,
+        );
+    }
+}
+
+/// A straight corridor along y between two walls at x = ±width/2, people walking both ways.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct CorridorConfig {
+    pub width_m: f64,
+    pub length_m: f64,
+    /// People per episode: the first half walk toward the robot (down), the rest along with it.
+    pub people: usize,
+}
+
+impl Default for CorridorConfig {
+    fn default() -> Self {
+        Self {
+            width_m: 2.0,
+            length_m: 14.0,
+            people: 6,
+        }
+    }
+}
+
+/// A hall along y between walls at x = ±hall_width/2, cut at y = 0 by a cross wall with a door
+/// centred on x = 0; people cross the door both ways.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct DoorwayConfig {
+    pub hall_width_m: f64,
+    pub length_m: f64,
+    pub door_width_m: f64,
+    /// People per episode: even ones start on the robot's side, odd ones on the far side.
+    pub people: usize,
+}
+
+impl Default for DoorwayConfig {
+    fn default() -> Self {
+        Self {
+            hall_width_m: 4.0,
+            length_m: 14.0,
+            door_width_m: 1.0,
+            people: 6,
+        }
+    }
+}
+
+/// A square room (a bounding wall) with random rectangular furniture and people walking between
+/// random places (HEIGHT-like).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct RoomConfig {
+    pub side_m: f64,
+    pub people_min: usize,
+    pub people_max: usize,
+    pub furniture_min: usize,
+    pub furniture_max: usize,
+    pub furniture_half_side_min_m: f64,
+    pub furniture_half_side_max_m: f64,
+    /// Furniture keeps at least this far from the robot's start and goal, and from each other.
+    pub furniture_clearance_m: f64,
+    /// A person's goal is at least this far from its start.
+    pub min_trip_m: f64,
+}
+
+impl Default for RoomConfig {
+    fn default() -> Self {
+        Self {
+            side_m: 9.0,
+            people_min: 5,
+            people_max: 8,
+            furniture_min: 3,
+            furniture_max: 6,
+            furniture_half_side_min_m: 0.2,
+            furniture_half_side_max_m: 0.6,
+            furniture_clearance_m: 0.8,
+            min_trip_m: 4.0,
+        }
+    }
+}
+
+/// Env 1's circle crossing (`humans.*`) around square and octagonal pillars near the centre.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct PillarsConfig {
+    pub people: usize,
+    pub pillars_min: usize,
+    pub pillars_max: usize,
+    /// Pillar centres are uniform in the disc of this radius around the origin.
+    pub centre_radius_m: f64,
+    /// Pillar centres at least this far apart.
+    pub spacing_m: f64,
+    pub size_min_m: f64,
+    pub size_max_m: f64,
+}
+
+impl Default for PillarsConfig {
+    fn default() -> Self {
+        Self {
+            people: 5,
+            pillars_min: 2,
+            pillars_max: 4,
+            centre_radius_m: 1.3,
+            spacing_m: 1.4,
+            size_min_m: 0.2,
+            size_max_m: 0.35,
+        }
+    }
+}
+
+/// How people find their way around obstacles: a visibility roadmap (RVO2's `Roadmap` example).
+/// Nodes sit off every convex corner and wall end; a person heads for its goal when it sees it
+/// (with its radius of clearance), else for the visible node with the shortest way to the goal.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct RoadmapConfig {
+    /// How far off a corner its node sits (beyond the person's radius).
+    pub corner_offset_m: f64,
+}
+
+impl Default for RoadmapConfig {
+    fn default() -> Self {
+        Self {
+            corner_offset_m: 0.15,
         }
     }
 }
@@ -584,6 +856,7 @@ impl SimConfig {
         c.non_negative("reward.effective_range_m", w.effective_range_m);
         c.non_negative("reward.standing_horizon_s", w.standing_horizon_s);
         c.non_negative("reward.dynamic_horizon_s", w.dynamic_horizon_s);
+        self.walls.check(c);
     }
 
     /// Validates the config and resolves setting names, reporting every problem of both at once.

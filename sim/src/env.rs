@@ -1,11 +1,15 @@
 //! The environment: state, the humans' ORCA step, the robot's step and one-step previews.
 
+use std::sync::Arc;
+
 use crate::config::{ConfigError, Kinematics, Setting, SimConfig};
 use crate::geom::{Vec2, Vec2f};
+use crate::map::StaticMap;
 use crate::orca::{Orca, OrcaAgent, OrcaParams};
-use crate::reward::{evaluate_step, evaluate_velocity_step, Outcome, StepEval};
+use crate::reward::{evaluate_step_among, evaluate_velocity_step_among, Outcome, StepEval};
 use crate::robot::{ActionSet, RobotState};
 use crate::scenario::{HumanState, Scenario, ScenarioError};
+use crate::walled::{Route, Walls};
 
 /// Why an environment could not be built or stepped.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -64,6 +68,9 @@ pub struct Env {
     outcome: Outcome,
     human_velocity: Vec<Vec2>,
     human_velocity_valid: bool,
+    /// Static obstacles, and every human's way to its goal then the robot's (walled only).
+    walls: Option<Arc<Walls>>,
+    routes: Vec<Route>,
 }
 
 fn orca_params(cfg: &SimConfig) -> OrcaParams {
@@ -88,6 +95,24 @@ fn to_f32(v: Vec2) -> Vec2f {
     Vec2f::new(v.x as f32, v.y as f32)
 }
 
+/// The preferred velocity among walls: toward the goal as on an open floor when the goal is in
+/// sight, else straight at the roadmap node ahead at full speed (`walled`'s module docs).
+fn routed_pref_velocity(
+    walls: &Walls,
+    route: &Route,
+    position: Vec2,
+    goal: Vec2,
+    radius_m: f64,
+) -> Vec2f {
+    let (target, is_goal) = walls.target(position, route, radius_m);
+    if is_goal {
+        return pref_velocity(position, goal);
+    }
+    let d = target - position;
+    let n = d.norm();
+    to_f32(if n > 0.0 { d / n } else { d })
+}
+
 impl Env {
     /// The episode of `setting` for `seed`.
     pub fn new(cfg: SimConfig, setting: Setting, seed: u64) -> Result<Self, EnvError> {
@@ -110,7 +135,7 @@ impl Env {
     fn from_parts(cfg: SimConfig, setting: Setting, seed: u64, scenario: Scenario) -> Self {
         let actions = ActionSet::for_config(&cfg);
         let n = scenario.humans.len();
-        Self {
+        let mut env = Self {
             orca: Orca::new(orca_params(&cfg)),
             orca_agents: Vec::with_capacity(n + 1),
             human_velocity: Vec::with_capacity(n),
@@ -119,22 +144,55 @@ impl Env {
             humans: scenario.humans,
             steps: 0,
             outcome: Outcome::Running,
+            walls: None,
+            routes: Vec::new(),
             cfg,
             setting,
             seed,
             actions,
+        };
+        env.set_walls(scenario.walls);
+        env
+    }
+
+    /// Takes the scenario's walls and plans every agent's way to its goal over them.
+    fn set_walls(&mut self, walls: Option<Arc<Walls>>) {
+        self.routes.clear();
+        if let Some(w) = &walls {
+            self.routes
+                .extend(self.humans.iter().map(|h| w.route(h.goal)));
+            self.routes.push(w.route(self.robot.goal));
         }
+        self.walls = walls;
+    }
+
+    /// The episode's static obstacles (None on an open floor).
+    pub fn walls(&self) -> Option<&Arc<Walls>> {
+        self.walls.as_ref()
+    }
+
+    /// The static obstacles the robot sees now (`[sim.walls.sensor]`, [`crate::walled::obstacle_points`]),
+    /// appended to `out`; nothing on an open floor.
+    pub fn obstacle_points_into(&self, out: &mut Vec<Vec2>) {
+        if let Some(w) = &self.walls {
+            out.extend(crate::walled::obstacle_points(
+                w.map(),
+                &self.cfg.walls.sensor,
+                self.robot.position,
+                self.robot.heading_rad,
+            ));
+        }
+    }
+
+    /// The walls' map, if any (for rewards computed outside the env).
+    pub fn wall_map(&self) -> Option<&StaticMap> {
+        self.walls.as_deref().map(Walls::map)
     }
 
     /// Starts the episode of `seed` in the same setting, reusing every buffer.
     pub fn reset(&mut self, seed: u64) -> Result<(), EnvError> {
         let scenario = Scenario::generate(&self.cfg, self.setting, seed)?;
-        self.robot = scenario.robot;
-        self.humans = scenario.humans;
-        self.seed = seed;
-        self.steps = 0;
-        self.outcome = Outcome::Running;
-        self.human_velocity_valid = false;
+        self.reset_to_scenario(seed, scenario);
         Ok(())
     }
 
@@ -147,6 +205,7 @@ impl Env {
         self.steps = 0;
         self.outcome = Outcome::Running;
         self.human_velocity_valid = false;
+        self.set_walls(scenario.walls);
     }
 
     /// Puts the episode in an explicit state with `steps` steps already taken, reusing every
@@ -194,11 +253,16 @@ impl Env {
     fn fill_orca_agents(&mut self, robot_extra_radius_m: f64) {
         let margin = self.cfg.orca.radius_margin_m;
         self.orca_agents.clear();
-        for h in &self.humans {
+        let walls = self.walls.as_deref();
+        let pref = |k: usize, position: Vec2, goal: Vec2, radius_m: f64| match walls {
+            Some(w) => routed_pref_velocity(w, &self.routes[k], position, goal, radius_m),
+            None => pref_velocity(position, goal),
+        };
+        for (k, h) in self.humans.iter().enumerate() {
             self.orca_agents.push(OrcaAgent {
                 position: to_f32(h.position),
                 velocity: to_f32(h.velocity),
-                pref_velocity: pref_velocity(h.position, h.goal),
+                pref_velocity: pref(k, h.position, h.goal, h.radius_m + margin),
                 radius_m: (h.radius_m + margin) as f32,
                 max_speed_mps: h.v_pref_mps as f32,
                 reciprocal: !h.standing,
@@ -207,7 +271,12 @@ impl Env {
         self.orca_agents.push(OrcaAgent {
             position: to_f32(self.robot.position),
             velocity: to_f32(self.robot.velocity),
-            pref_velocity: pref_velocity(self.robot.position, self.robot.goal),
+            pref_velocity: pref(
+                self.humans.len(),
+                self.robot.position,
+                self.robot.goal,
+                self.robot.radius_m + margin + robot_extra_radius_m,
+            ),
             radius_m: (self.robot.radius_m + margin + robot_extra_radius_m) as f32,
             max_speed_mps: self.robot.v_pref_mps as f32,
             reciprocal: true,
@@ -226,7 +295,11 @@ impl Env {
                 let v = if self.humans[i].standing {
                     Vec2::zeros()
                 } else {
-                    let v = self.orca.new_velocity(i, &self.orca_agents[..visible_len]);
+                    let agents = &self.orca_agents[..visible_len];
+                    let v = match &self.walls {
+                        Some(w) => self.orca.new_velocity_among(i, agents, w.obstacles()),
+                        None => self.orca.new_velocity(i, agents),
+                    };
                     Vec2::new(v.x as f64, v.y as f64)
                 };
                 self.human_velocity.push(v);
@@ -263,8 +336,9 @@ impl Env {
                 len: self.actions.len(),
             })?;
         self.human_step_velocities();
-        Ok(evaluate_step(
+        Ok(evaluate_step_among(
             &self.cfg,
+            self.wall_map(),
             &self.robot,
             action,
             &self.humans,
@@ -280,8 +354,9 @@ impl Env {
             return Err(EnvError::NotHolonomic(self.cfg.robot.kinematics));
         }
         self.human_step_velocities();
-        Ok(evaluate_velocity_step(
+        Ok(evaluate_velocity_step_among(
             &self.cfg,
+            self.wall_map(),
             &self.robot,
             velocity,
             &self.humans,
@@ -335,7 +410,12 @@ impl Env {
     pub fn orca_robot_velocity(&mut self, safety_space_m: f64) -> Vec2 {
         self.fill_orca_agents(safety_space_m);
         let ego = self.humans.len();
-        let v = self.orca.new_velocity(ego, &self.orca_agents);
+        let v = match &self.walls {
+            Some(w) => self
+                .orca
+                .new_velocity_among(ego, &self.orca_agents, w.obstacles()),
+            None => self.orca.new_velocity(ego, &self.orca_agents),
+        };
         Vec2::new(v.x as f64, v.y as f64)
     }
 

@@ -40,6 +40,29 @@ pub struct EpisodeSummary {
     /// Smallest closest distance over the danger steps (∞ without one): CrowdNav's
     /// `min_danger_dist` of one episode.
     pub min_danger_m: f64,
+    /// The episode ended in a collision with a wall (its outcome is `Collision`).
+    pub wall_collision: bool,
+    /// The robot froze: the episode timed out and the robot moved less than
+    /// [`FROZEN_DISTANCE_M`] over its last [`FROZEN_WINDOW_S`] ([`is_frozen`]).
+    pub frozen: bool,
+}
+
+/// A timed-out robot that moved less than this over the last [`FROZEN_WINDOW_S`] froze.
+pub const FROZEN_DISTANCE_M: f64 = 0.5;
+/// The window over which [`FROZEN_DISTANCE_M`] is measured, in simulated time.
+pub const FROZEN_WINDOW_S: f64 = 5.0;
+
+/// Whether an episode with `outcome`, whose robot went through `positions` (one per step, the
+/// start included), froze: it timed out and the robot ended less than [`FROZEN_DISTANCE_M`]
+/// from where it was [`FROZEN_WINDOW_S`] earlier (the "freezing robot problem").
+pub fn is_frozen(outcome: Outcome, positions: &[Vec2], dt_s: f64) -> bool {
+    if outcome != Outcome::Timeout || positions.is_empty() {
+        return false;
+    }
+    let window = (FROZEN_WINDOW_S / dt_s).round() as usize;
+    let last = positions[positions.len() - 1];
+    let then = positions[positions.len().saturating_sub(window + 1)];
+    (last - then).norm() < FROZEN_DISTANCE_M
 }
 
 impl EpisodeSummary {
@@ -98,7 +121,11 @@ where
         return_sum: 0.0,
         min_closest_m: f64::INFINITY,
         min_danger_m: f64::INFINITY,
+        wall_collision: false,
+        frozen: false,
     };
+    let mut positions = Vec::with_capacity(env.config().max_steps() as usize + 1);
+    positions.push(env.robot().position);
     while !env.is_done() {
         let before = *env.robot();
         let command = policy(env);
@@ -112,12 +139,15 @@ where
             summary.danger_steps += 1;
             summary.min_danger_m = summary.min_danger_m.min(info.eval.closest_m);
         }
+        summary.wall_collision = info.eval.wall_contact;
+        positions.push(env.robot().position);
         steps.push(info);
         if record_frames {
             frames.push(frame(env));
         }
     }
     summary.outcome = env.outcome();
+    summary.frozen = is_frozen(summary.outcome, &positions, env.config().dt_s);
     summary.steps = env.steps();
     summary.time_s = env.time_s();
     Ok(Episode {
@@ -144,6 +174,10 @@ pub struct Aggregate {
     pub timeout_steps: u64,
     pub abs_rotation_rad: f64,
     pub return_sum: f64,
+    /// Collisions with a wall (included in `collisions`).
+    pub wall_collisions: u32,
+    /// Timed-out episodes whose robot froze (included in `timeouts`).
+    pub frozen: u32,
 }
 
 impl Aggregate {
@@ -155,10 +189,14 @@ impl Aggregate {
                 self.success_time_s += s.time_s;
                 self.success_path_m += s.path_length_m;
             }
-            Outcome::Collision => self.collisions += 1,
+            Outcome::Collision => {
+                self.collisions += 1;
+                self.wall_collisions += u32::from(s.wall_collision);
+            }
             Outcome::Timeout => {
                 self.timeouts += 1;
                 self.timeout_steps += s.steps as u64;
+                self.frozen += u32::from(s.frozen);
             }
             Outcome::Running => {}
         }
@@ -181,6 +219,8 @@ impl Aggregate {
         self.timeout_steps += o.timeout_steps;
         self.abs_rotation_rad += o.abs_rotation_rad;
         self.return_sum += o.return_sum;
+        self.wall_collisions += o.wall_collisions;
+        self.frozen += o.frozen;
     }
 
     fn rate(&self, n: u32) -> f64 {
@@ -198,6 +238,18 @@ impl Aggregate {
     }
     pub fn timeout_rate(&self) -> f64 {
         self.rate(self.timeouts)
+    }
+    /// Collisions with a wall, over all episodes.
+    pub fn wall_collision_rate(&self) -> f64 {
+        self.rate(self.wall_collisions)
+    }
+    /// Collisions with people, over all episodes.
+    pub fn people_collision_rate(&self) -> f64 {
+        self.rate(self.collisions - self.wall_collisions)
+    }
+    /// Frozen robots (timeouts without progress), over all episodes.
+    pub fn frozen_rate(&self) -> f64 {
+        self.rate(self.frozen)
     }
     /// Mean nav time over successful episodes; `None` without a success.
     pub fn nav_time_s(&self) -> Option<f64> {

@@ -33,12 +33,19 @@ pub mod rvo;
 pub mod scan;
 pub mod scenario;
 pub mod scenes;
+pub mod walled;
 
 pub use config::{ConfigError, DynamicReading, EnvKind, Kinematics, Semantics, Setting, SimConfig};
 pub use env::{Env, EnvError, RobotCommand, StepInfo};
-pub use episode::{run_episode, run_episode_with, Aggregate, Episode, EpisodeSummary, Frame};
+pub use episode::{
+    is_frozen, run_episode, run_episode_with, Aggregate, Episode, EpisodeSummary, Frame,
+};
 pub use geom::Vec2;
-pub use reward::{evaluate_step, evaluate_velocity_step, Outcome, RewardTerms, StepEval};
+pub use reward::{
+    evaluate_step, evaluate_step_among, evaluate_velocity_step, evaluate_velocity_step_among,
+    Outcome, RewardTerms, StepEval,
+};
 pub use robot::{Action, ActionSet, RobotState};
 pub use scenario::{HumanState, Scenario, ScenarioError};
 pub use scenes::{parse_scenes, SceneCase, SceneError, SceneFile, SceneFormat};
+pub use walled::{Walls, WallsError};

@@ -5,6 +5,7 @@
 
 use crate::config::{DynamicReading, Semantics, SimConfig};
 use crate::geom::{closest_approach, Vec2};
+use crate::map::StaticMap;
 use crate::robot::{Action, RobotState};
 use crate::scenario::HumanState;
 
@@ -56,6 +57,8 @@ pub struct StepEval {
     pub closest_m: f64,
     /// A step closer than the comfort distance that neither collides nor reaches the goal.
     pub danger: bool,
+    /// The robot touched a wall during the step (a collision, reported apart from people).
+    pub wall_contact: bool,
     pub reward: RewardTerms,
     /// The robot at the end of the step.
     pub robot_next: RobotState,
@@ -77,11 +80,34 @@ pub fn evaluate_step(
     human_velocity: &[Vec2],
     steps_after: u32,
 ) -> StepEval {
+    evaluate_step_among(
+        cfg,
+        None,
+        robot,
+        action,
+        humans,
+        human_velocity,
+        steps_after,
+    )
+}
+
+/// [`evaluate_step`] among static obstacles: the robot touching a wall during the step (its
+/// swept path closer than its radius to a wall) is a collision, before anything else.
+pub fn evaluate_step_among(
+    cfg: &SimConfig,
+    walls: Option<&StaticMap>,
+    robot: &RobotState,
+    action: Action,
+    humans: &[HumanState],
+    human_velocity: &[Vec2],
+    steps_after: u32,
+) -> StepEval {
     let kinematics = cfg.robot.kinematics;
     let robot_velocity = robot.velocity_for(kinematics, action);
     let robot_next = robot.propagate_with(kinematics, action, cfg.dt_s);
     evaluate_motion(
         cfg,
+        walls,
         robot,
         robot_velocity,
         robot_next,
@@ -101,9 +127,31 @@ pub fn evaluate_velocity_step(
     human_velocity: &[Vec2],
     steps_after: u32,
 ) -> StepEval {
+    evaluate_velocity_step_among(
+        cfg,
+        None,
+        robot,
+        velocity,
+        humans,
+        human_velocity,
+        steps_after,
+    )
+}
+
+/// [`evaluate_velocity_step`] among static obstacles (see [`evaluate_step_among`]).
+pub fn evaluate_velocity_step_among(
+    cfg: &SimConfig,
+    walls: Option<&StaticMap>,
+    robot: &RobotState,
+    velocity: Vec2,
+    humans: &[HumanState],
+    human_velocity: &[Vec2],
+    steps_after: u32,
+) -> StepEval {
     let robot_next = robot.move_with_velocity(velocity, cfg.dt_s);
     evaluate_motion(
         cfg,
+        walls,
         robot,
         velocity,
         robot_next,
@@ -188,8 +236,10 @@ pub fn crowdnav_outcome(
     }
 }
 
+#[allow(clippy::too_many_arguments)]
 fn evaluate_motion(
     cfg: &SimConfig,
+    walls: Option<&StaticMap>,
     robot: &RobotState,
     robot_velocity: Vec2,
     robot_next: RobotState,
@@ -201,6 +251,9 @@ fn evaluate_motion(
     let dt = cfg.dt_s;
     let w = &cfg.reward;
     let reaching_goal = (robot_next.position - robot.goal).norm() < robot.radius_m;
+    let wall_contact = walls.is_some_and(|map| {
+        map.swept_clearance_m(robot.position, robot_next.position) < robot.radius_m
+    });
 
     let (outcome, closest_m) = match cfg.semantics {
         Semantics::Spec => {
@@ -229,6 +282,11 @@ fn evaluate_motion(
                 closest_m,
             )
         }
+    };
+    let outcome = if wall_contact {
+        Outcome::Collision
+    } else {
+        outcome
     };
 
     let collision_goal = match (cfg.semantics, outcome) {
@@ -263,6 +321,7 @@ fn evaluate_motion(
         outcome,
         closest_m,
         danger,
+        wall_contact,
         reward: RewardTerms {
             collision_goal,
             standing,

@@ -257,6 +257,7 @@ impl OpenCase {
             scenario: Scenario {
                 robot,
                 humans: self.humans,
+                walls: None,
             },
         })
     }

@@ -380,7 +380,17 @@ fn human(x: f64, y: f64, gx: f64, gy: f64) -> HumanState {
 }
 
 fn env_with(cfg: SimConfig, robot: RobotState, humans: Vec<HumanState>) -> Env {
-    Env::from_scenario(cfg, Setting::ALL[0], 0, Scenario { robot, humans }).unwrap()
+    Env::from_scenario(
+        cfg,
+        Setting::ALL[0],
+        0,
+        Scenario {
+            robot,
+            humans,
+            walls: None,
+        },
+    )
+    .unwrap()
 }
 
 /// The holonomic action "full speed, straight up" (k = 4: π/2, last speed).

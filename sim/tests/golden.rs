@@ -46,7 +46,17 @@ fn human(x: f64, y: f64, gx: f64, gy: f64, standing: bool) -> HumanState {
 }
 
 fn env_with(cfg: SimConfig, setting: &str, robot: RobotState, humans: Vec<HumanState>) -> Env {
-    Env::from_scenario(cfg, setting.parse().unwrap(), 0, Scenario { robot, humans }).unwrap()
+    Env::from_scenario(
+        cfg,
+        setting.parse().unwrap(),
+        0,
+        Scenario {
+            robot,
+            humans,
+            walls: None,
+        },
+    )
+    .unwrap()
 }
 
 #[test]
