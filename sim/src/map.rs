@@ -74,7 +74,9 @@ impl fmt::Display for ShapeKind {
 /// One obstacle outline in the world frame (metres).
 #[derive(Debug, Clone, PartialEq)]
 pub struct Shape {
+    /// How the vertex list is read.
     pub kind: ShapeKind,
+    /// World-frame vertices (metres), in order; a closed shape's first vertex is not repeated.
     pub vertices: Vec<Vec2>,
 }
 
@@ -173,7 +175,9 @@ impl Shape {
 /// A straight piece of wall from `a` to `b` (metres).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Segment {
+    /// Start (metres).
     pub a: Vec2,
+    /// End (metres).
     pub b: Vec2,
 }
 
@@ -258,7 +262,9 @@ pub enum Defect {
 pub struct ShapeProblem {
     /// Index of the shape in the list given to [`StaticMap::new`].
     pub shape: usize,
+    /// The shape's kind, named in the message.
     pub kind: ShapeKind,
+    /// What is wrong.
     pub defect: Defect,
 }
 

@@ -139,6 +139,7 @@ impl ScanGeometry {
 /// One sweep of ranges, as `sensor_msgs/LaserScan` carries it.
 #[derive(Debug, Clone, PartialEq)]
 pub struct LaserScan {
+    /// Beam angles and valid range interval.
     pub geometry: ScanGeometry,
     /// One range per beam, metres; REP 117's ±inf and NaN as described in the module docs.
     pub ranges: Vec<f32>,
