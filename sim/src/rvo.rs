@@ -476,7 +476,9 @@ impl ObstacleSet {
             return;
         }
 
-        // The closest of the left leg, the right leg and the cut-off line.
+        // The closest of the left leg, the right leg and the cut-off line. (RVO2's test as it
+        // is: a NaN `t` falls through to the cut-off line, which `!contains` would not.)
+        #[allow(clippy::manual_range_contains)]
         let dist_sq_cutoff = if t < 0.0 || t > 1.0 || same {
             f32::INFINITY
         } else {
