@@ -208,7 +208,7 @@ impl Lookahead {
         self.obs.extend(self.next_humans.iter().map(HumanObs::from));
         // Walls are static: the points seen now stand for every candidate's next state.
         self.obstacles.clear();
-        env.obstacle_points_into(&mut self.obstacles);
+        env.static_entities_into(&mut self.obstacles);
         self.obs
             .extend(self.obstacles.iter().map(|&p| HumanObs::obstacle(p)));
 

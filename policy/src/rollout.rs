@@ -23,7 +23,7 @@ impl JointState {
     pub fn observe(env: &Env) -> Self {
         let mut humans: Vec<HumanObs> = env.humans().iter().map(HumanObs::from).collect();
         let mut points = Vec::new();
-        env.obstacle_points_into(&mut points);
+        env.static_entities_into(&mut points);
         humans.extend(points.into_iter().map(HumanObs::obstacle));
         Self {
             robot: *env.robot(),

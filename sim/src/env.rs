@@ -171,17 +171,26 @@ impl Env {
         self.walls.as_ref()
     }
 
-    /// The static obstacles the robot sees now (`[sim.walls.sensor]`, [`crate::walled::obstacle_points`]),
-    /// appended to `out`; nothing on an open floor.
-    pub fn obstacle_points_into(&self, out: &mut Vec<Vec2>) {
-        if let Some(w) = &self.walls {
-            out.extend(crate::walled::obstacle_points(
-                w.map(),
-                &self.cfg.walls.sensor,
-                self.robot.position,
-                self.robot.heading_rad,
-            ));
-        }
+    /// The static entities the robot sees now, appended to `out`; nothing on an open floor.
+    /// Among walls: first one "no return" point per person slot left empty (the room has 5–8
+    /// people and the networks a fixed number of entities per run: [`crate::walled::people_slots`]),
+    /// then the sensor's obstacle points ([`crate::walled::obstacle_points`]). A "no return" point
+    /// is what an empty sensor sector reads: at the sensor's range, here straight behind.
+    pub fn static_entities_into(&self, out: &mut Vec<Vec2>) {
+        let Some(w) = &self.walls else {
+            return;
+        };
+        let sensor = &self.cfg.walls.sensor;
+        let (pose, heading) = (self.robot.position, self.robot.heading_rad);
+        let slots = crate::walled::people_slots(&self.cfg, self.setting.env).unwrap_or(0);
+        let behind = pose - crate::geom::heading(heading) * sensor.range_m;
+        out.extend(std::iter::repeat(behind).take(slots.saturating_sub(self.humans.len())));
+        out.extend(crate::walled::obstacle_points(
+            w.map(),
+            sensor,
+            pose,
+            heading,
+        ));
     }
 
     /// The walls' map, if any (for rewards computed outside the env).

@@ -250,6 +250,18 @@ pub fn sector_points_or_range(
         .collect()
 }
 
+/// The most people a walled layout has (`Some` for the walled kinds): the networks see this
+/// many person slots, empty ones as "no return" points ([`crate::Env::static_entities_into`]).
+pub fn people_slots(cfg: &SimConfig, env: EnvKind) -> Option<usize> {
+    match env {
+        EnvKind::Corridor => Some(cfg.walls.corridor.people),
+        EnvKind::Doorway => Some(cfg.walls.doorway.people),
+        EnvKind::Room => Some(cfg.walls.room.people_max),
+        EnvKind::Pillars => Some(cfg.walls.pillars.people),
+        EnvKind::Env1 | EnvKind::Env2 | EnvKind::Env3 => None,
+    }
+}
+
 /// The map of a fixed layout (`corridor`, `doorway`); None for the drawn ones and the paper's.
 pub fn fixed_map(cfg: &SimConfig, env: EnvKind) -> Option<StaticMap> {
     let shapes = match env {
