@@ -46,8 +46,10 @@ pub struct SimArgs {
     /// Run the explicit scenes of FILE instead of generated episodes, each once per visibility.
     /// FILE is CSV in CrowdNav's format (`case,agent,px,py,gx,gy`, e.g. its
     /// test_h10_scenes.csv; radii and speeds from the config) or fsrl's (the same plus optional
-    /// `radius_m`, `v_pref_mps`, `standing` columns); see the `sim::scenes` docs. On CrowdNav's
-    /// 500 test scenes the table shows CrowdNav's numbers beside ours.
+    /// `radius_m`, `v_pref_mps`, `standing` columns), or TOML with static obstacles (polygons,
+    /// walls, bounding walls; e.g. examples/scenes/*.toml), checked before anything runs; see the
+    /// `sim::scenes` and `sim::scene_map` docs. On CrowdNav's 500 test scenes the table shows
+    /// CrowdNav's numbers beside ours.
     #[arg(long, value_name = "FILE")]
     pub scenes: Option<PathBuf>,
     /// With --scenes: visibilities to run, comma-separated: invisible, visible
@@ -235,6 +237,7 @@ fn run_scenes(args: &SimArgs, cfg: SimConfig, path: &Path) -> anyhow::Result<()>
         match file.format {
             SceneFormat::CrowdNav => "CrowdNav",
             SceneFormat::Fsrl => "fsrl",
+            SceneFormat::Toml => "fsrl TOML",
         }
     );
     let reference = crowdnav_reference && n == file.cases.len();

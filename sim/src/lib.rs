@@ -32,6 +32,7 @@ pub mod robot;
 pub mod rvo;
 pub mod scan;
 pub mod scenario;
+pub mod scene_map;
 pub mod scenes;
 pub mod walled;
 

@@ -4,8 +4,12 @@
 //!
 //! # Format
 //!
-//! A scene file is CSV (comma-separated, no quoting) in one of two flavours that share one
-//! grammar:
+//! A scene file is CSV, or TOML for scenes with static obstacles. A file whose first line that
+//! is neither blank nor a `#` comment starts with `[` or holds a `=` is TOML: fsrl's scenes
+//! with obstacles (polygons, walls, bounding walls) for the whole file or per case, specified
+//! in [`crate::scene_map`] and checked there (shapes, starts and goals clear of the
+//! obstacles, the robot's goal reachable) before anything runs. Otherwise the file is CSV
+//! (comma-separated, no quoting, open floor) in one of two flavours that share one grammar:
 //!
 //! - **CrowdNav's** (`test_h10_scenes.csv`): columns `case,agent,px,py,gx,gy`. Every agent takes
 //!   its radius and preferred speed from the configuration (`robot.*`, `humans.*`) and every
@@ -40,6 +44,7 @@ use crate::config::SimConfig;
 use crate::geom::Vec2;
 use crate::robot::RobotState;
 use crate::scenario::{initial_robot, HumanState, Scenario};
+pub use crate::scene_map::SceneProblem;
 
 /// Which flavour a scene file is in.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -48,6 +53,8 @@ pub enum SceneFormat {
     CrowdNav,
     /// The CrowdNav columns plus at least one of `radius_m`, `v_pref_mps`, `standing`.
     Fsrl,
+    /// fsrl's TOML scenes, with or without obstacles ([`crate::scene_map`]).
+    Toml,
 }
 
 /// One case of a scene file.
@@ -55,7 +62,7 @@ pub enum SceneFormat {
 pub struct SceneCase {
     /// The case id of the file.
     pub case: u64,
-    /// Line of the case's first row (1-based).
+    /// Line of the case's first row (1-based; TOML: its `[[cases]]` header).
     pub line: usize,
     pub scenario: Scenario,
 }
@@ -109,13 +116,38 @@ pub enum SceneError {
     StandingRobot { line: usize },
     #[error("the scene file has a header but no case")]
     NoCases,
+    /// A TOML scene file that is not valid TOML or not in the scene format (toml's message,
+    /// which names the line and column).
+    #[error("{message}")]
+    Toml {
+        line: Option<usize>,
+        message: String,
+    },
+    /// Every problem of a TOML scene file's contents.
+    #[error("{}", problem_list(.0))]
+    Invalid(Vec<SceneProblem>),
+}
+
+fn problem_list(problems: &[SceneProblem]) -> String {
+    let mut s = format!(
+        "invalid scenes ({} problem{}):",
+        problems.len(),
+        if problems.len() == 1 { "" } else { "s" }
+    );
+    for p in problems {
+        s.push_str("\n  - ");
+        s.push_str(&p.to_string());
+    }
+    s
 }
 
 impl SceneError {
-    /// The line the problem was found on, if any.
+    /// The line the problem was found on, if any (the first problem's for [`SceneError::Invalid`]).
     pub fn line(&self) -> Option<usize> {
         match self {
             SceneError::NoHeader | SceneError::NoCases => None,
+            SceneError::Toml { line, .. } => *line,
+            SceneError::Invalid(problems) => problems.first().and_then(SceneProblem::line),
             SceneError::UnknownColumn { line, .. }
             | SceneError::DuplicateColumn { line, .. }
             | SceneError::MissingColumn { line, .. }
@@ -169,6 +201,7 @@ impl fmt::Display for SceneFormat {
         f.write_str(match self {
             SceneFormat::CrowdNav => "CrowdNav (case,agent,px,py,gx,gy)",
             SceneFormat::Fsrl => "fsrl (with radius_m / v_pref_mps / standing)",
+            SceneFormat::Toml => "fsrl TOML (with obstacles)",
         })
     }
 }
@@ -263,9 +296,13 @@ impl OpenCase {
     }
 }
 
-/// Parses a scene file's text; radii and preferred speeds not given in the file come from
-/// `cfg` (`robot.radius_m`, `robot.v_pref_mps`, `humans.radius_m`, `humans.v_pref_mps`).
+/// Parses a scene file's text, CSV or TOML (see the module docs); radii and preferred speeds
+/// not given in the file come from `cfg` (`robot.radius_m`, `robot.v_pref_mps`,
+/// `humans.radius_m`, `humans.v_pref_mps`).
 pub fn parse_scenes(text: &str, cfg: &SimConfig) -> Result<SceneFile, SceneError> {
+    if is_toml(text) {
+        return crate::scene_map::parse_toml_scenes(text, cfg);
+    }
     let mut lines = text
         .lines()
         .enumerate()
@@ -416,6 +453,15 @@ pub fn parse_scenes(text: &str, cfg: &SimConfig) -> Result<SceneFile, SceneError
         return Err(SceneError::NoCases);
     }
     Ok(SceneFile { format, cases })
+}
+
+/// Whether the first line that is neither blank nor a comment is TOML (a table header or a
+/// key = value), not a CSV header.
+fn is_toml(text: &str) -> bool {
+    text.lines()
+        .map(str::trim)
+        .find(|l| !l.is_empty() && !l.starts_with('#'))
+        .is_some_and(|l| l.starts_with('[') || l.contains('='))
 }
 
 #[cfg(test)]

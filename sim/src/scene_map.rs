@@ -1,0 +1,699 @@
+//! fsrl's TOML scene files: explicit cases with static obstacles (issue 53), the flavour of
+//! [`crate::scenes::parse_scenes`] for scenes with walls. Parsed from text, so `sim` stays free
+//! of IO; every problem of the file is checked before anything runs and reported at once, each
+//! naming its line, its case and its obstacle or agent.
+//!
+//! # Format
+//!
+//! ```toml
+//! # Obstacles of every case (optional): kind, and vertices as [x, y] in metres.
+//! [[obstacles]]
+//! kind = "wall"                            # an open polyline, walls on both sides
+//! vertices = [[-1, -7], [-1, 7]]
+//!
+//! [[obstacles]]
+//! kind = "polygon"                         # solid, counter-clockwise
+//! vertices = [[0.5, 0], [1, 0], [1, 0.5], [0.5, 0.5]]
+//!
+//! [[cases]]
+//! id = 0                                   # optional; default: the case's index in the file
+//! robot = { start = [0, -4], goal = [0, 4] }   # optional radius_m, v_pref_mps
+//!
+//! [[cases.humans]]                         # humans 0, 1, 2, ... in file order (optional)
+//! start = [0.3, 3]
+//! goal = [-0.2, -5]                        # optional for a standing human
+//! radius_m = 0.3                           # optional, as v_pref_mps and standing
+//!
+//! [[cases.obstacles]]                      # this case's own obstacles (optional), after the
+//! kind = "boundary"                        # file's: a bounding wall, clockwise, free inside
+//! vertices = [[-4, -6], [-4, 6], [4, 6], [4, -6]]
+//! ```
+//!
+//! Keys are exactly these (an unknown key is an error); integers may stand for numbers.
+//! Radii and preferred speeds left out come from the configuration, as in the CSV flavour.
+//! The shapes follow [`crate::map`]'s rules (RVO2's conventions): a `polygon` has at least 3
+//! vertices listed counter-clockwise, a `boundary` at least 3 listed clockwise, a `wall` at
+//! least 2; no shape crosses itself; a closed shape does not repeat its first vertex; shapes
+//! may overlap each other. In a case with obstacles, no start or goal may be inside an obstacle
+//! or closer to one than the agent's radius, and the robot's goal must be reachable from its
+//! start by a disc of the robot's radius ([`StaticMap::reachable`] on a [`REACH_CELL_M`] grid).
+//! A case with obstacles gets [`Walls`] whose roadmap is for its largest person
+//! (`radius_m + orca.radius_margin_m`); cases without obstacles are open floors.
+
+use std::fmt;
+use std::sync::Arc;
+
+use serde::Deserialize;
+use toml::Spanned;
+
+use crate::config::SimConfig;
+use crate::geom::Vec2;
+use crate::map::{MapError, Shape, ShapeKind, ShapeProblem, StaticMap};
+use crate::scenario::{initial_robot, HumanState, Scenario};
+use crate::scenes::{SceneCase, SceneError, SceneFile, SceneFormat};
+use crate::walled::{Walls, WallsError};
+
+/// Grid cell of the robot's reachability check (metres).
+pub const REACH_CELL_M: f64 = 0.1;
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct DocFile {
+    #[serde(default)]
+    obstacles: Vec<Spanned<DocShape>>,
+    #[serde(default)]
+    cases: Vec<Spanned<DocCase>>,
+}
+
+/// A point `[x, y]` in metres (exactly two numbers).
+#[derive(Deserialize, Clone, Copy)]
+#[serde(try_from = "Vec<f64>")]
+struct Point([f64; 2]);
+
+impl TryFrom<Vec<f64>> for Point {
+    type Error = String;
+    fn try_from(v: Vec<f64>) -> Result<Self, String> {
+        match v[..] {
+            [x, y] => Ok(Point([x, y])),
+            _ => Err(format!(
+                "a point is [x, y] (two numbers, metres), got {} number{}",
+                v.len(),
+                if v.len() == 1 { "" } else { "s" }
+            )),
+        }
+    }
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct DocShape {
+    kind: DocKind,
+    vertices: Vec<Point>,
+}
+
+#[derive(Deserialize, Clone, Copy)]
+#[serde(rename_all = "lowercase")]
+enum DocKind {
+    Polygon,
+    Wall,
+    Boundary,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct DocCase {
+    id: Option<u64>,
+    robot: Spanned<DocRobot>,
+    #[serde(default)]
+    humans: Vec<Spanned<DocHuman>>,
+    #[serde(default)]
+    obstacles: Vec<Spanned<DocShape>>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct DocRobot {
+    start: Point,
+    goal: Point,
+    radius_m: Option<f64>,
+    v_pref_mps: Option<f64>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct DocHuman {
+    start: Point,
+    goal: Option<Point>,
+    radius_m: Option<f64>,
+    v_pref_mps: Option<f64>,
+    #[serde(default)]
+    standing: bool,
+}
+
+/// An agent of a case.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum AgentRef {
+    Robot,
+    /// Human k of the case (0-based, file order).
+    Human(usize),
+}
+
+impl fmt::Display for AgentRef {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            AgentRef::Robot => f.write_str("the robot"),
+            AgentRef::Human(k) => write!(f, "human {k}"),
+        }
+    }
+}
+
+/// Which end of an agent's trip.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum End {
+    Start,
+    Goal,
+}
+
+impl fmt::Display for End {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(match self {
+            End::Start => "start",
+            End::Goal => "goal",
+        })
+    }
+}
+
+/// Where an obstacle is given: in the file's `[[obstacles]]` or in a case's, by index.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ShapePlace {
+    /// The case whose `[[cases.obstacles]]` list it is in; None for the file's list.
+    pub case: Option<u64>,
+    /// Its index in that list (0-based).
+    pub index: usize,
+    pub kind: ShapeKind,
+    /// Its line (1-based).
+    pub line: usize,
+}
+
+impl fmt::Display for ShapePlace {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self.case {
+            None => write!(f, "obstacle {}", self.index)?,
+            Some(case) => write!(f, "case {case}'s obstacle {}", self.index)?,
+        }
+        write!(f, " ({}, line {})", self.kind, self.line)
+    }
+}
+
+/// How a start or goal meets an obstacle.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Contact {
+    /// Inside a solid polygon.
+    Inside,
+    /// Outside a bounding wall (its free space is inside).
+    Outside,
+    /// On one of its edges.
+    On,
+    /// In free space, but nearer to it than the agent's radius.
+    Within { distance_m: f64, radius_m: f64 },
+}
+
+/// One problem of a TOML scene file (1-based lines).
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum SceneProblem {
+    /// A shape the map refuses ([`crate::map::Defect`]: too few vertices, non-finite
+    /// coordinates, wrong orientation, self-intersection, ...).
+    #[error("line {}: {place} {}", place.line, defect_text(.problem))]
+    Shape {
+        place: ShapePlace,
+        problem: ShapeProblem,
+    },
+    /// A start or goal coordinate that is NaN or infinite.
+    #[error("line {line}: case {case}: {agent}'s {end} is ({}, {}); coordinates must be finite numbers", .point[0], .point[1])]
+    NonFinitePoint {
+        line: usize,
+        case: u64,
+        agent: AgentRef,
+        end: End,
+        point: [f64; 2],
+    },
+    /// A radius or preferred speed out of its domain.
+    #[error("line {line}: case {case}: {agent}'s {field} must be {domain}, got {value}")]
+    BadNumber {
+        line: usize,
+        case: u64,
+        agent: AgentRef,
+        field: &'static str,
+        domain: &'static str,
+        value: f64,
+    },
+    /// A walking human without a goal.
+    #[error("line {line}: case {case}: human {human} has no goal; only a standing human (standing = true) may leave it out")]
+    NoGoal {
+        line: usize,
+        case: u64,
+        human: usize,
+    },
+    /// A start or goal inside an obstacle, or overlapping one by the agent's radius.
+    #[error("line {line}: case {case}: {agent}'s {end} ({}, {}) {}", .point.x, .point.y, contact_text(.contact, .obstacle))]
+    Blocked {
+        line: usize,
+        case: u64,
+        agent: AgentRef,
+        end: End,
+        point: Vec2,
+        obstacle: ShapePlace,
+        contact: Contact,
+    },
+    /// The robot's goal cannot be reached from its start.
+    #[error("line {line}: case {case}: the robot cannot reach its goal ({}, {}) from its start ({}, {}): the obstacles leave no way for its radius {radius_m} m (searched on a {cell_m} m grid)", .goal.x, .goal.y, .start.x, .start.y)]
+    Unreachable {
+        line: usize,
+        case: u64,
+        start: Vec2,
+        goal: Vec2,
+        radius_m: f64,
+        cell_m: f64,
+    },
+    /// The reachability check could not run (e.g. a map too large for its grid).
+    #[error("line {line}: case {case}: cannot check that the robot's goal is reachable: {error}")]
+    Reachability {
+        line: usize,
+        case: u64,
+        error: MapError,
+    },
+    /// RVO2's obstacles could not be built from the map.
+    #[error("line {line}: case {case}: {error}")]
+    Walls {
+        line: usize,
+        case: u64,
+        error: WallsError,
+    },
+    /// Two cases with one id.
+    #[error(
+        "line {line}: case {case} appears again (first at line {first_line}); case ids must differ"
+    )]
+    DuplicateCase {
+        line: usize,
+        case: u64,
+        first_line: usize,
+    },
+    /// A file without `[[cases]]`.
+    #[error("the scene file has no case (add a [[cases]] table with a robot)")]
+    NoCases,
+}
+
+impl SceneProblem {
+    /// The line the problem is on, if any.
+    pub fn line(&self) -> Option<usize> {
+        match self {
+            SceneProblem::Shape { place, .. } => Some(place.line),
+            SceneProblem::NonFinitePoint { line, .. }
+            | SceneProblem::BadNumber { line, .. }
+            | SceneProblem::NoGoal { line, .. }
+            | SceneProblem::Blocked { line, .. }
+            | SceneProblem::Unreachable { line, .. }
+            | SceneProblem::Reachability { line, .. }
+            | SceneProblem::Walls { line, .. }
+            | SceneProblem::DuplicateCase { line, .. } => Some(*line),
+            SceneProblem::NoCases => None,
+        }
+    }
+}
+
+/// The defect part of a map's problem message (which names the shape by its index in the map,
+/// not by its place in the file).
+fn defect_text(p: &ShapeProblem) -> String {
+    let full = p.to_string();
+    let prefix = format!("shape {} ({}) ", p.shape, p.kind);
+    full.strip_prefix(&prefix).unwrap_or(&full).to_string()
+}
+
+fn contact_text(contact: &Contact, obstacle: &ShapePlace) -> String {
+    match contact {
+        Contact::Inside => format!("is inside {obstacle}"),
+        Contact::Outside => {
+            format!("is outside {obstacle}, a bounding wall whose free space is inside")
+        }
+        Contact::On => format!("lies on an edge of {obstacle}"),
+        Contact::Within {
+            distance_m,
+            radius_m,
+        } => format!(
+            "overlaps {obstacle}: it is {distance_m:.3} m from it, closer than its radius \
+             {radius_m} m"
+        ),
+    }
+}
+
+fn line_of(text: &str, byte: usize) -> usize {
+    let end = byte.min(text.len());
+    text.as_bytes()[..end]
+        .iter()
+        .filter(|&&b| b == b'\n')
+        .count()
+        + 1
+}
+
+fn to_shape(doc: &DocShape) -> Shape {
+    Shape {
+        kind: match doc.kind {
+            DocKind::Polygon => ShapeKind::Polygon,
+            DocKind::Wall => ShapeKind::Wall,
+            DocKind::Boundary => ShapeKind::Boundary,
+        },
+        vertices: doc
+            .vertices
+            .iter()
+            .map(|Point([x, y])| Vec2::new(*x, *y))
+            .collect(),
+    }
+}
+
+/// One checked shape: where it is given, and it alone as a map (for naming the obstacle an
+/// agent meets). None when the shape is invalid.
+struct Checked {
+    place: ShapePlace,
+    shape: Shape,
+    alone: Option<StaticMap>,
+}
+
+fn check_shapes(
+    text: &str,
+    case: Option<u64>,
+    docs: &[Spanned<DocShape>],
+    problems: &mut Vec<SceneProblem>,
+) -> Vec<Checked> {
+    docs.iter()
+        .enumerate()
+        .map(|(index, doc)| {
+            let shape = to_shape(doc.get_ref());
+            let place = ShapePlace {
+                case,
+                index,
+                kind: shape.kind,
+                line: line_of(text, doc.span().start),
+            };
+            let alone = match StaticMap::new(vec![shape.clone()]) {
+                Ok(map) => Some(map),
+                Err(MapError::Invalid(list)) => {
+                    problems.extend(
+                        list.into_iter()
+                            .map(|problem| SceneProblem::Shape { place, problem }),
+                    );
+                    None
+                }
+                Err(other) => unreachable!("StaticMap::new refuses only with Invalid: {other}"),
+            };
+            Checked {
+                place,
+                shape,
+                alone,
+            }
+        })
+        .collect()
+}
+
+/// How `p` with `radius_m` meets the shape `alone`, if it does.
+fn contact(alone: &StaticMap, p: Vec2, radius_m: f64) -> Option<Contact> {
+    if alone.is_free(p, radius_m) {
+        return None;
+    }
+    let distance_m = alone.distance_m(p);
+    let kind = alone.shapes()[0].kind;
+    Some(if distance_m == 0.0 {
+        Contact::On
+    } else if !alone.is_free(p, 0.0) {
+        if kind == ShapeKind::Boundary {
+            Contact::Outside
+        } else {
+            Contact::Inside
+        }
+    } else {
+        Contact::Within {
+            distance_m,
+            radius_m,
+        }
+    })
+}
+
+/// `value` or, when left out, `default`; a problem when `ok` refuses it.
+#[allow(clippy::too_many_arguments)]
+fn number(
+    problems: &mut Vec<SceneProblem>,
+    case: u64,
+    line: usize,
+    agent: AgentRef,
+    field: &'static str,
+    value: Option<f64>,
+    default: f64,
+    ok: fn(f64) -> bool,
+    domain: &'static str,
+) -> f64 {
+    let v = value.unwrap_or(default);
+    if !ok(v) {
+        problems.push(SceneProblem::BadNumber {
+            line,
+            case,
+            agent,
+            field,
+            domain,
+            value: v,
+        });
+    }
+    v
+}
+
+fn finite(p: [f64; 2]) -> bool {
+    p[0].is_finite() && p[1].is_finite()
+}
+
+/// Parses fsrl's TOML scene text (see the module docs); defaults from `cfg`.
+pub fn parse_toml_scenes(text: &str, cfg: &SimConfig) -> Result<SceneFile, SceneError> {
+    let doc: DocFile = toml::from_str(text).map_err(|e| SceneError::Toml {
+        line: e.span().map(|s| line_of(text, s.start)),
+        message: e.to_string().trim_end().to_string(),
+    })?;
+    let mut problems = Vec::new();
+    let shared = check_shapes(text, None, &doc.obstacles, &mut problems);
+    let shared_valid = shared.iter().all(|c| c.alone.is_some());
+    if doc.cases.is_empty() {
+        problems.push(SceneProblem::NoCases);
+    }
+    // Walls of cases with the file's obstacles only, by the roadmap's person radius.
+    let mut shared_walls: Vec<(f64, Arc<Walls>)> = Vec::new();
+    let mut first_line_of: std::collections::HashMap<u64, usize> = Default::default();
+    let mut cases = Vec::with_capacity(doc.cases.len());
+    for (index, spanned) in doc.cases.iter().enumerate() {
+        let line = line_of(text, spanned.span().start);
+        let c = spanned.get_ref();
+        let case = c.id.unwrap_or(index as u64);
+        if let Some(&first_line) = first_line_of.get(&case) {
+            problems.push(SceneProblem::DuplicateCase {
+                line,
+                case,
+                first_line,
+            });
+        } else {
+            first_line_of.insert(case, line);
+        }
+        let before = problems.len();
+
+        let robot_line = line_of(text, c.robot.span().start);
+        let rd = c.robot.get_ref();
+        let (start, goal) = (rd.start.0, rd.goal.0);
+        let mut robot = initial_robot(cfg);
+        for (end, p) in [(End::Start, start), (End::Goal, goal)] {
+            if !finite(p) {
+                problems.push(SceneProblem::NonFinitePoint {
+                    line: robot_line,
+                    case,
+                    agent: AgentRef::Robot,
+                    end,
+                    point: p,
+                });
+            }
+        }
+        robot.position = Vec2::new(start[0], start[1]);
+        robot.goal = Vec2::new(goal[0], goal[1]);
+        robot.radius_m = number(
+            &mut problems,
+            case,
+            robot_line,
+            AgentRef::Robot,
+            "radius_m",
+            rd.radius_m,
+            cfg.robot.radius_m,
+            |v| v.is_finite() && v > 0.0,
+            "a finite number > 0",
+        );
+        robot.v_pref_mps = number(
+            &mut problems,
+            case,
+            robot_line,
+            AgentRef::Robot,
+            "v_pref_mps",
+            rd.v_pref_mps,
+            cfg.robot.v_pref_mps,
+            |v| v.is_finite() && v > 0.0,
+            "a finite number > 0",
+        );
+        let mut humans = Vec::with_capacity(c.humans.len());
+        let mut human_lines = Vec::with_capacity(c.humans.len());
+        for (k, spanned) in c.humans.iter().enumerate() {
+            let hline = line_of(text, spanned.span().start);
+            let h = spanned.get_ref();
+            let agent = AgentRef::Human(k);
+            let radius_m = number(
+                &mut problems,
+                case,
+                hline,
+                agent,
+                "radius_m",
+                h.radius_m,
+                cfg.humans.radius_m,
+                |v| v.is_finite() && v > 0.0,
+                "a finite number > 0",
+            );
+            let v_pref_mps = number(
+                &mut problems,
+                case,
+                hline,
+                agent,
+                "v_pref_mps",
+                h.v_pref_mps,
+                cfg.humans.v_pref_mps,
+                |v| v.is_finite() && v >= 0.0,
+                "a finite number >= 0",
+            );
+            let start = h.start.0;
+            let goal = match (h.goal, h.standing) {
+                (_, true) => start,
+                (Some(g), false) => g.0,
+                (None, false) => {
+                    problems.push(SceneProblem::NoGoal {
+                        line: hline,
+                        case,
+                        human: k,
+                    });
+                    start
+                }
+            };
+            for (end, p) in [(End::Start, start), (End::Goal, goal)] {
+                if !finite(p) && !(h.standing && end == End::Goal) {
+                    problems.push(SceneProblem::NonFinitePoint {
+                        line: hline,
+                        case,
+                        agent,
+                        end,
+                        point: p,
+                    });
+                }
+            }
+            humans.push(HumanState {
+                position: Vec2::new(start[0], start[1]),
+                velocity: Vec2::zeros(),
+                goal: Vec2::new(goal[0], goal[1]),
+                radius_m,
+                v_pref_mps,
+                standing: h.standing,
+            });
+            human_lines.push(hline);
+        }
+
+        let own = check_shapes(text, Some(case), &c.obstacles, &mut problems);
+        let has_obstacles = !(shared.is_empty() && own.is_empty());
+        let mut walls = None;
+        // Placement and reachability need a valid map and finite agents.
+        if has_obstacles && shared_valid && problems.len() == before {
+            let all: Vec<&Checked> = shared.iter().chain(&own).collect();
+            let mut agents: Vec<(usize, AgentRef, End, Vec2, f64)> = vec![
+                (
+                    robot_line,
+                    AgentRef::Robot,
+                    End::Start,
+                    robot.position,
+                    robot.radius_m,
+                ),
+                (
+                    robot_line,
+                    AgentRef::Robot,
+                    End::Goal,
+                    robot.goal,
+                    robot.radius_m,
+                ),
+            ];
+            for (k, h) in humans.iter().enumerate() {
+                let agent = AgentRef::Human(k);
+                agents.push((human_lines[k], agent, End::Start, h.position, h.radius_m));
+                if !h.standing {
+                    agents.push((human_lines[k], agent, End::Goal, h.goal, h.radius_m));
+                }
+            }
+            for (line, agent, end, point, radius_m) in agents {
+                let hit = all.iter().find_map(|c| {
+                    let alone = c.alone.as_ref().expect("checked valid");
+                    contact(alone, point, radius_m).map(|k| (c.place, k))
+                });
+                if let Some((obstacle, contact)) = hit {
+                    problems.push(SceneProblem::Blocked {
+                        line,
+                        case,
+                        agent,
+                        end,
+                        point,
+                        obstacle,
+                        contact,
+                    });
+                }
+            }
+            let shapes: Vec<Shape> = all.iter().map(|c| c.shape.clone()).collect();
+            let map = StaticMap::new(shapes).expect("every shape is valid alone");
+            if problems.len() == before {
+                match map.reachable(robot.position, robot.goal, robot.radius_m, REACH_CELL_M) {
+                    Ok(true) => {}
+                    Ok(false) => problems.push(SceneProblem::Unreachable {
+                        line: robot_line,
+                        case,
+                        start: robot.position,
+                        goal: robot.goal,
+                        radius_m: robot.radius_m,
+                        cell_m: REACH_CELL_M,
+                    }),
+                    Err(error) => problems.push(SceneProblem::Reachability {
+                        line: robot_line,
+                        case,
+                        error,
+                    }),
+                }
+            }
+            // The roadmap is for the case's largest person (its ORCA radius).
+            let roadmap_radius_m = if humans.is_empty() {
+                cfg.humans.radius_m
+            } else {
+                humans.iter().map(|h| h.radius_m).fold(0.0, f64::max)
+            } + cfg.orca.radius_margin_m;
+            let cached = own
+                .is_empty()
+                .then(|| {
+                    shared_walls
+                        .iter()
+                        .find(|(r, _)| *r == roadmap_radius_m)
+                        .map(|(_, w)| Arc::clone(w))
+                })
+                .flatten();
+            walls = match cached {
+                Some(w) => Some(w),
+                None => match Walls::new(map, cfg, roadmap_radius_m) {
+                    Ok(w) => {
+                        let w = Arc::new(w);
+                        if own.is_empty() {
+                            shared_walls.push((roadmap_radius_m, Arc::clone(&w)));
+                        }
+                        Some(w)
+                    }
+                    Err(error) => {
+                        problems.push(SceneProblem::Walls { line, case, error });
+                        None
+                    }
+                },
+            };
+        }
+        cases.push(SceneCase {
+            case,
+            line,
+            scenario: Scenario {
+                robot,
+                humans,
+                walls,
+            },
+        });
+    }
+    if !problems.is_empty() {
+        return Err(SceneError::Invalid(problems));
+    }
+    Ok(SceneFile {
+        format: SceneFormat::Toml,
+        cases,
+    })
+}
