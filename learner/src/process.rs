@@ -233,7 +233,7 @@ fn restore(
             let core = LearnerCore::new(
                 spec.method,
                 spec.train.clone(),
-                spec.sim.humans.count,
+                spec.sim.entities(spec.setting),
                 spec.sim.dt_s,
                 spec.seed,
             )?;

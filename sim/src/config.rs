@@ -889,6 +889,12 @@ impl SimConfig {
         }
     }
 
+    /// The rows (entities) a value network sees per state in `setting`: `humans.count` in the
+    /// paper's six; person slots plus obstacle sectors among walls.
+    pub fn entities(&self, setting: Setting) -> usize {
+        crate::walled::entity_count(self, setting)
+    }
+
     /// The number of steps after which an episode times out.
     pub fn max_steps(&self) -> u32 {
         (self.time_limit_s / self.dt_s - 1e-9).ceil() as u32

@@ -24,6 +24,8 @@ use crate::scenario::{initial_robot, HumanState, Scenario, ScenarioError};
 
 /// Grid cell of the reachability checks of generated layouts.
 const REACH_CELL_M: f64 = 0.1;
+/// Attempts at drawing the people of a layout before giving up.
+const PEOPLE_ATTEMPTS: usize = 20;
 /// Attempts at drawing a layout whose robot goal is reachable before giving up.
 const LAYOUT_ATTEMPTS: usize = 200;
 
@@ -262,6 +264,15 @@ pub fn people_slots(cfg: &SimConfig, env: EnvKind) -> Option<usize> {
     }
 }
 
+/// The rows (entities) the networks see per state in `setting`: the humans on an open floor;
+/// among walls the person slots plus the sensor's sectors ([`crate::Env::static_entities_into`]).
+pub fn entity_count(cfg: &SimConfig, setting: Setting) -> usize {
+    match people_slots(cfg, setting.env) {
+        Some(slots) => slots + cfg.walls.sensor.sectors,
+        None => cfg.humans.count,
+    }
+}
+
 /// The map of a fixed layout (`corridor`, `doorway`); None for the drawn ones and the paper's.
 pub fn fixed_map(cfg: &SimConfig, env: EnvKind) -> Option<StaticMap> {
     let shapes = match env {
@@ -403,22 +414,37 @@ fn drawn_map<R: Rng>(
     )))
 }
 
-/// A free place for a person of radius `r` on `map`, clear of everybody `placed` (their starts
-/// and goals) by `gap`, drawn by `draw`.
+/// Which places of the people already placed a new place keeps clear of.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Clear {
+    /// Their starts and their goals (people cross each other's ways: room, pillars).
+    Both,
+    /// Their starts only (a start in a lane: corridor, doorway).
+    Starts,
+    /// Their goals only (a goal in a lane).
+    Goals,
+}
+
+/// A free place for a person of radius `r` on `map`, clear by `gap` of the `clear` places of
+/// everybody `placed` (start, goal, radius), drawn by `draw`.
+#[allow(clippy::too_many_arguments)]
 fn place<R: Rng>(
     rng: &mut R,
     attempts: usize,
     map: &StaticMap,
     placed: &[(Vec2, Vec2, f64)],
+    clear: Clear,
     r: f64,
     gap: f64,
     mut draw: impl FnMut(&mut R) -> Vec2,
 ) -> Option<Vec2> {
     (0..attempts).map(|_| draw(rng)).find(|&p| {
         map.is_free(p, r + gap)
-            && placed
-                .iter()
-                .all(|(s, g, pr)| (p - s).norm() >= r + pr + gap && (p - g).norm() >= r + pr + gap)
+            && placed.iter().all(|(s, g, pr)| {
+                let min = r + pr + gap;
+                (clear == Clear::Goals || (p - s).norm() >= min)
+                    && (clear == Clear::Starts || (p - g).norm() >= min)
+            })
     })
 }
 
@@ -437,110 +463,125 @@ pub(crate) fn generate<R: Rng>(
         None => drawn_map(cfg, setting, seed, rng)?,
     };
     let (r, gap) = (h.radius_m, h.spawn_gap_m);
-    let mut placed = vec![(robot.position, robot.goal, robot.radius_m)];
-    let mut humans = Vec::new();
     let too_crowded = |human: usize| ScenarioError::TooCrowded {
         setting,
         seed,
         human,
         attempts: h.max_spawn_attempts,
     };
-    let people = match setting.env {
-        EnvKind::Corridor => cfg.walls.corridor.people,
-        EnvKind::Doorway => cfg.walls.doorway.people,
-        EnvKind::Room => rng.gen_range(cfg.walls.room.people_min..=cfg.walls.room.people_max),
-        EnvKind::Pillars => cfg.walls.pillars.people,
-        _ => unreachable!("walled::generate is called for walled settings only"),
-    };
-    for k in 0..people {
-        let attempts = h.max_spawn_attempts;
-        let (start, goal) = match setting.env {
-            EnvKind::Corridor | EnvKind::Doorway => {
-                let (half_w, half_l) = match setting.env {
-                    EnvKind::Corridor => (
-                        cfg.walls.corridor.width_m / 2.0,
-                        cfg.walls.corridor.length_m / 2.0,
-                    ),
-                    _ => (
-                        cfg.walls.doorway.hall_width_m / 2.0,
-                        cfg.walls.doorway.length_m / 2.0,
-                    ),
-                };
-                let x_lim = (half_w - r - gap).max(0.0);
-                // Corridor: the first half come toward the robot; doorway: even people start
-                // on the robot's side (y < 0), odd ones on the far side.
-                let down = match setting.env {
-                    EnvKind::Corridor => k < people / 2,
-                    _ => k % 2 == 1,
-                };
-                let sign = if down { 1.0 } else { -1.0 };
-                let (y0, y1) = match setting.env {
-                    EnvKind::Corridor => (0.5, half_l - 1.0),
-                    _ => (1.0, half_l - 1.5),
-                };
-                let start = place(rng, attempts, &map, &placed, r, gap, |rng| {
-                    Vec2::new(uniform(rng, -x_lim, x_lim), sign * uniform(rng, y0, y1))
-                })
-                .ok_or_else(|| too_crowded(k))?;
-                let goal = place(rng, attempts, &map, &placed, r, gap, |rng| {
-                    Vec2::new(
-                        uniform(rng, -x_lim, x_lim),
-                        -sign * uniform(rng, half_l - 4.0, half_l - 0.5),
-                    )
-                })
-                .ok_or_else(|| too_crowded(k))?;
-                (start, goal)
-            }
-            EnvKind::Room => {
-                let room = &cfg.walls.room;
-                let lim = room.side_m / 2.0 - r - gap;
-                let mut found = None;
-                for _ in 0..attempts {
-                    let Some(start) = place(rng, 1, &map, &placed, r, gap, |rng| {
-                        Vec2::new(uniform(rng, -lim, lim), uniform(rng, -lim, lim))
-                    }) else {
-                        continue;
-                    };
-                    let Some(goal) = place(rng, 1, &map, &placed, r, gap, |rng| {
-                        Vec2::new(uniform(rng, -lim, lim), uniform(rng, -lim, lim))
-                    }) else {
-                        continue;
-                    };
-                    if (goal - start).norm() >= room.min_trip_m
-                        && map
-                            .reachable(start, goal, r, REACH_CELL_M)
-                            .map_err(|e| fail(e.to_string()))?
-                    {
-                        found = Some((start, goal));
-                        break;
-                    }
-                }
-                found.ok_or_else(|| too_crowded(k))?
-            }
-            EnvKind::Pillars => {
-                let start = place(rng, attempts, &map, &placed, r, gap, |rng| {
-                    let angle = rng.gen::<f64>() * std::f64::consts::TAU;
-                    let noise = Vec2::new(
-                        (rng.gen::<f64>() * 2.0 - 1.0) * h.start_noise_m,
-                        (rng.gen::<f64>() * 2.0 - 1.0) * h.start_noise_m,
-                    );
-                    heading(angle) * h.circle_radius_m + noise
-                })
-                .ok_or_else(|| too_crowded(k))?;
-                (start, -start)
-            }
+    // People drawn one after the other can leave no room for the last in a lane: the whole
+    // crowd is drawn again (from the same generator, so still a function of the seed).
+    let mut draw_people = |rng: &mut R| -> Result<Vec<HumanState>, ScenarioError> {
+        let mut placed = vec![(robot.position, robot.goal, robot.radius_m)];
+        let mut humans = Vec::new();
+        let people = match setting.env {
+            EnvKind::Corridor => cfg.walls.corridor.people,
+            EnvKind::Doorway => cfg.walls.doorway.people,
+            EnvKind::Room => rng.gen_range(cfg.walls.room.people_min..=cfg.walls.room.people_max),
+            EnvKind::Pillars => cfg.walls.pillars.people,
             _ => unreachable!("walled::generate is called for walled settings only"),
         };
-        placed.push((start, goal, r));
-        humans.push(HumanState {
-            position: start,
-            velocity: Vec2::zeros(),
-            goal,
-            radius_m: r,
-            v_pref_mps: h.v_pref_mps,
-            standing: false,
-        });
+        for k in 0..people {
+            let attempts = h.max_spawn_attempts;
+            let (start, goal) = match setting.env {
+                EnvKind::Corridor | EnvKind::Doorway => {
+                    let (half_w, half_l) = match setting.env {
+                        EnvKind::Corridor => (
+                            cfg.walls.corridor.width_m / 2.0,
+                            cfg.walls.corridor.length_m / 2.0,
+                        ),
+                        _ => (
+                            cfg.walls.doorway.hall_width_m / 2.0,
+                            cfg.walls.doorway.length_m / 2.0,
+                        ),
+                    };
+                    let x_lim = (half_w - r - gap).max(0.0);
+                    // Corridor: the first half come toward the robot; doorway: even people start
+                    // on the robot's side (y < 0), odd ones on the far side.
+                    let down = match setting.env {
+                        EnvKind::Corridor => k < people / 2,
+                        _ => k % 2 == 1,
+                    };
+                    let sign = if down { 1.0 } else { -1.0 };
+                    let (y0, y1) = match setting.env {
+                        EnvKind::Corridor => (0.5, half_l - 1.0),
+                        _ => (1.0, half_l - 1.5),
+                    };
+                    let start = place(rng, attempts, &map, &placed, Clear::Starts, r, gap, |rng| {
+                        Vec2::new(uniform(rng, -x_lim, x_lim), sign * uniform(rng, y0, y1))
+                    })
+                    .ok_or_else(|| too_crowded(k))?;
+                    let goal = place(rng, attempts, &map, &placed, Clear::Goals, r, gap, |rng| {
+                        Vec2::new(
+                            uniform(rng, -x_lim, x_lim),
+                            -sign * uniform(rng, half_l - 4.5, half_l - 0.5),
+                        )
+                    })
+                    .ok_or_else(|| too_crowded(k))?;
+                    (start, goal)
+                }
+                EnvKind::Room => {
+                    let room = &cfg.walls.room;
+                    let lim = room.side_m / 2.0 - r - gap;
+                    let mut found = None;
+                    for _ in 0..attempts {
+                        let Some(start) =
+                            place(rng, 1, &map, &placed, Clear::Both, r, gap, |rng| {
+                                Vec2::new(uniform(rng, -lim, lim), uniform(rng, -lim, lim))
+                            })
+                        else {
+                            continue;
+                        };
+                        let Some(goal) = place(rng, 1, &map, &placed, Clear::Both, r, gap, |rng| {
+                            Vec2::new(uniform(rng, -lim, lim), uniform(rng, -lim, lim))
+                        }) else {
+                            continue;
+                        };
+                        if (goal - start).norm() >= room.min_trip_m
+                            && map
+                                .reachable(start, goal, r, REACH_CELL_M)
+                                .map_err(|e| fail(e.to_string()))?
+                        {
+                            found = Some((start, goal));
+                            break;
+                        }
+                    }
+                    found.ok_or_else(|| too_crowded(k))?
+                }
+                EnvKind::Pillars => {
+                    let start = place(rng, attempts, &map, &placed, Clear::Both, r, gap, |rng| {
+                        let angle = rng.gen::<f64>() * std::f64::consts::TAU;
+                        let noise = Vec2::new(
+                            (rng.gen::<f64>() * 2.0 - 1.0) * h.start_noise_m,
+                            (rng.gen::<f64>() * 2.0 - 1.0) * h.start_noise_m,
+                        );
+                        heading(angle) * h.circle_radius_m + noise
+                    })
+                    .ok_or_else(|| too_crowded(k))?;
+                    (start, -start)
+                }
+                _ => unreachable!("walled::generate is called for walled settings only"),
+            };
+            placed.push((start, goal, r));
+            humans.push(HumanState {
+                position: start,
+                velocity: Vec2::zeros(),
+                goal,
+                radius_m: r,
+                v_pref_mps: h.v_pref_mps,
+                standing: false,
+            });
+        }
+        Ok(humans)
+    };
+    let mut humans = draw_people(rng);
+    for _ in 1..PEOPLE_ATTEMPTS {
+        match humans {
+            Err(ScenarioError::TooCrowded { .. }) => humans = draw_people(rng),
+            _ => break,
+        }
     }
+    let humans = humans?;
     let walls =
         Walls::new(map, cfg, r + cfg.orca.radius_margin_m).map_err(|e| fail(e.to_string()))?;
     Ok(Scenario {
@@ -593,7 +634,7 @@ mod tests {
         use rand::SeedableRng;
         let cfg = SimConfig::default();
         for setting in Setting::WALLED {
-            for seed in 0..20 {
+            for seed in (0..200).chain([15479352932571408521]) {
                 let mut a = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
                 let mut b = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
                 let s = generate(&cfg, setting, seed, &mut a).unwrap();
