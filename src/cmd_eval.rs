@@ -1,5 +1,5 @@
-//! `fsrl eval`: scores model files, checkpoints (or the ORCA baseline) on the test seeds of all
-//! six settings with the paper's five metrics plus path length, smoothness and return, with 95% intervals, and
+//! `fsrl eval`: scores model files, checkpoints (or the ORCA baseline) on the test seeds of the
+//! six settings (or those named, walled ones too; a model trained among walls on its own) with the paper's five metrics plus path length, smoothness and return, with 95% intervals, and
 //! writes `eval.md` (the paper's table layout beside the paper's numbers), `eval.csv` and
 //! `eval.json`.
 //!
@@ -10,7 +10,7 @@ use std::path::PathBuf;
 
 use anyhow::bail;
 use indicatif::ProgressBar;
-use lab::evaluation::{evaluate_orca, EvalPlan, LoadedPolicy};
+use lab::evaluation::{default_settings, evaluate_orca, EvalPlan, LoadedPolicy};
 use lab::policy_file::{resolve_input, Input};
 use policy::method::Select;
 use sim::{Setting, SimConfig};
@@ -37,7 +37,10 @@ pub struct EvalArgs {
     /// First test seed (CrowdNav's test seeds start at 1000).
     #[arg(long, default_value_t = 1000)]
     pub seed_start: u64,
-    /// Settings, comma-separated (default: all six).
+    /// Settings, comma-separated: the paper's six (env1-invisible ... env3-visible) and the
+    /// walled ones (corridor, doorway, room-invisible, room-visible, pillars-invisible,
+    /// pillars-visible) [default: the paper's six; for a model trained in a walled setting,
+    /// that setting].
     #[arg(long, value_delimiter = ',')]
     pub settings: Vec<String>,
     /// Output directory for eval.md, eval.csv and eval.json [default: RUN/eval for a single run
@@ -77,12 +80,13 @@ pub fn progress(len: u64, what: &str) -> ProgressBar {
     launch::progress::bar(len, what, 12, false)
 }
 
-/// The settings named on the command line (all six when none), every problem reported at once.
-pub fn parse_settings(names: &[String]) -> anyhow::Result<Vec<Setting>> {
+/// The settings named on the command line (`None` when none: each subject's defaults,
+/// [`default_settings`]), every problem reported at once.
+pub fn parse_settings(names: &[String]) -> anyhow::Result<Option<Vec<Setting>>> {
     if names.is_empty() {
-        return Ok(Setting::ALL.to_vec());
+        return Ok(None);
     }
-    Ok(SimConfig::default().resolve_settings(names)?)
+    Ok(Some(SimConfig::default().resolve_settings(names)?))
 }
 
 pub fn run(args: EvalArgs) -> anyhow::Result<()> {
@@ -121,8 +125,8 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
             _ => PathBuf::from("eval"),
         },
     };
-    let plan = EvalPlan {
-        settings,
+    let mut plan = EvalPlan {
+        settings: Vec::new(),
         seed_start: args.seed_start,
         episodes: args.episodes,
         threads,
@@ -131,18 +135,22 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
         planning_breadth: args.planning_breadth,
     };
     let mut subjects = Vec::new();
-    let per_subject = plan.settings.len() as u64 * args.episodes as u64;
+    let per_subject = |plan: &EvalPlan| plan.settings.len() as u64 * args.episodes as u64;
     if args.orca {
         let sim = FileConfig::load(args.config.as_deref())?.sim;
         sim.validate()?;
-        let bar = progress(per_subject, "orca");
+        plan.settings = settings.clone().unwrap_or_else(|| Setting::ALL.to_vec());
+        let bar = progress(per_subject(&plan), "orca");
         subjects.push(evaluate_orca(&sim, &plan, &|| bar.inc(1))?);
         bar.finish_and_clear();
     }
     for input in &inputs {
         let policy = LoadedPolicy::read(input)?;
+        plan.settings = settings
+            .clone()
+            .unwrap_or_else(|| default_settings(policy.model.setting));
         let bar = progress(
-            per_subject,
+            per_subject(&plan),
             &policy.label.chars().take(12).collect::<String>(),
         );
         subjects.push(policy.evaluate(&plan, &|| bar.inc(1))?);

@@ -87,6 +87,8 @@ pub fn report(
             .iter()
             .map(|r| {
                 let a = &r.aggregate;
+                // Walls and people apart, and frozen robots, only where there are walls.
+                let walled = |rate: f64| (!r.setting.is_paper()).then_some(rate);
                 proto::SettingReport {
                     setting: r.setting.name().to_string(),
                     episodes: a.episodes,
@@ -98,23 +100,45 @@ pub fn report(
                     mean_return: a.mean_return(),
                     path_length_m: a.path_length_m().unwrap_or(0.0),
                     smoothness_rad: a.mean_abs_rotation_rad(),
+                    wall_collision_rate: walled(a.wall_collision_rate()),
+                    people_collision_rate: walled(a.people_collision_rate()),
+                    frozen_rate: walled(a.frozen_rate()),
                 }
             })
             .collect(),
     }
 }
 
-/// The paper's table layout: Succ., Coll., Timeout, Nav. Time, Disc. per setting and averaged.
+/// The paper's table layout: Succ., Coll., Timeout, Nav. Time, Disc. per setting and averaged
+/// over the paper's settings of each visibility; with a walled setting in the report, wall
+/// collisions, people collisions and frozen robots in columns of their own ("–" elsewhere).
 pub fn markdown(r: &EvalReport, method: &str, version: u64) -> String {
+    let walled = r.settings.iter().any(|x| x.wall_collision_rate.is_some());
     let mut s = format!(
-        "Method `{method}`, weights version {version}, {} RL episodes trained{}.\n\n| setting | episodes | Succ. | Coll. | Timeout | Nav. Time (s) | Disc. |\n|---|---|---|---|---|---|---|\n",
+        "Method `{method}`, weights version {version}, {} RL episodes trained{}.\n\n| setting | episodes | Succ. | Coll. | Timeout | Nav. Time (s) | Disc. |{}\n|---|---|---|---|---|---|---|{}\n",
         r.trained_episodes,
-        if r.final_snapshot { " (final)" } else { "" }
+        if r.final_snapshot { " (final)" } else { "" },
+        if walled { " Wall coll. | People coll. | Frozen |" } else { "" },
+        if walled { "---|---|---|" } else { "" },
     );
+    let cell =
+        |v: Option<f64>, digits: usize| v.map_or("–".to_string(), |x| format!("{x:.digits$}"));
     let row = |name: &str, n: u32, sr: f64, cr: f64, tr: f64, nav: Option<f64>, d: f64| {
         format!(
-            "| {name} | {n} | {sr:.3} | {cr:.3} | {tr:.3} | {} | {d:.3} |\n",
-            nav.map_or("–".to_string(), |x| format!("{x:.2}"))
+            "| {name} | {n} | {sr:.3} | {cr:.3} | {tr:.3} | {} | {d:.3} |",
+            cell(nav, 2)
+        )
+    };
+    let end = |x: Option<&proto::SettingReport>| {
+        if !walled {
+            return "\n".to_string();
+        }
+        let x = x.filter(|x| x.wall_collision_rate.is_some());
+        format!(
+            " {} | {} | {} |\n",
+            cell(x.and_then(|x| x.wall_collision_rate), 3),
+            cell(x.and_then(|x| x.people_collision_rate), 3),
+            cell(x.and_then(|x| x.frozen_rate), 3)
         )
     };
     for x in &r.settings {
@@ -127,12 +151,17 @@ pub fn markdown(r: &EvalReport, method: &str, version: u64) -> String {
             x.nav_time_s,
             x.discomfort,
         );
+        s += &end(Some(x));
     }
     for vis in ["invisible", "visible"] {
         let rows: Vec<_> = r
             .settings
             .iter()
-            .filter(|x| x.setting.ends_with(&format!("-{vis}")))
+            .filter(|x| {
+                x.setting
+                    .parse::<Setting>()
+                    .is_ok_and(|s| s.is_paper() && s.name().ends_with(&format!("-{vis}")))
+            })
             .collect();
         if rows.len() > 1 {
             let n = rows.len() as f64;
@@ -147,6 +176,7 @@ pub fn markdown(r: &EvalReport, method: &str, version: u64) -> String {
                 nav,
                 rows.iter().map(|x| x.discomfort).sum::<f64>() / n,
             );
+            s += &end(None);
         }
     }
     s

@@ -31,6 +31,16 @@ pub struct EvalPlan {
     pub planning_breadth: Option<usize>,
 }
 
+/// The settings a policy is evaluated on when none are named: the paper's six for a policy
+/// trained on one of them (every shipped model), its own setting for one trained among walls.
+pub fn default_settings(trained: Setting) -> Vec<Setting> {
+    if trained.is_paper() {
+        Setting::ALL.to_vec()
+    } else {
+        vec![trained]
+    }
+}
+
 /// The ORCA robot on `sim` as a report's subject.
 pub fn evaluate_orca(
     sim: &SimConfig,

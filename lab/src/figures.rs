@@ -329,6 +329,7 @@ mod tests {
             mean_abs_rotation_rad: 0.0,
             mean_return: 0.0,
             return_std: None,
+            walls: None,
         }
     }
 

@@ -170,6 +170,81 @@ pub struct SettingReport {
     pub mean_return: f64,
     #[serde(default)]
     pub return_std: Option<f64>,
+    /// Wall and people collisions and frozen robots apart: only in the walled settings (issue
+    /// 53), absent from every report of the paper's six (whose JSON stays as it was).
+    #[serde(flatten, skip_serializing_if = "Option::is_none")]
+    pub walls: Option<WallReport>,
+}
+
+/// How the collisions of a walled setting split (walls, people) and how many robots froze,
+/// counts and rates with their 95% Wilson intervals. Wall and people collisions add up to
+/// [`SettingReport::collisions`]; frozen robots are among [`SettingReport::timeouts`] (a timed-out
+/// robot that moved less than `sim::FROZEN_DISTANCE_M` over its last `sim::FROZEN_WINDOW_S`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct WallReport {
+    pub wall_collisions: u32,
+    pub people_collisions: u32,
+    pub frozen_robots: u32,
+    /// Wall collisions / episodes.
+    pub wall_collision: f64,
+    pub wall_collision_ci95: [f64; 2],
+    /// People collisions / episodes.
+    pub people_collision: f64,
+    pub people_collision_ci95: [f64; 2],
+    /// Frozen robots / episodes.
+    pub frozen_robot: f64,
+    pub frozen_robot_ci95: [f64; 2],
+}
+
+impl WallReport {
+    pub fn new(a: &Aggregate) -> Self {
+        let people = a.collisions.saturating_sub(a.wall_collisions);
+        Self {
+            wall_collisions: a.wall_collisions,
+            people_collisions: people,
+            frozen_robots: a.frozen,
+            wall_collision: a.wall_collision_rate(),
+            wall_collision_ci95: wilson(a.wall_collisions, a.episodes),
+            people_collision: a.people_collision_rate(),
+            people_collision_ci95: wilson(people, a.episodes),
+            frozen_robot: a.frozen_rate(),
+            frozen_robot_ci95: wilson(a.frozen, a.episodes),
+        }
+    }
+
+    /// The counts add up to the report's (wall + people = collisions, frozen ≤ timeouts) and
+    /// give the rates.
+    fn check(&self, r: &SettingReport) -> Result<(), String> {
+        let s = &r.setting;
+        if u64::from(self.wall_collisions) + u64::from(self.people_collisions)
+            != u64::from(r.collisions)
+            || self.frozen_robots > r.timeouts
+        {
+            return Err(format!(
+                "{s}: {} wall + {} people collisions, {} frozen robots do not split {} collisions and {} timeouts",
+                self.wall_collisions,
+                self.people_collisions,
+                self.frozen_robots,
+                r.collisions,
+                r.timeouts
+            ));
+        }
+        let n = f64::from(r.episodes);
+        for (name, k, rate) in [
+            ("wall_collision", self.wall_collisions, self.wall_collision),
+            (
+                "people_collision",
+                self.people_collisions,
+                self.people_collision,
+            ),
+            ("frozen_robot", self.frozen_robots, self.frozen_robot),
+        ] {
+            if !((f64::from(k) / n - rate).abs() <= 1e-9) {
+                return Err(format!("{s}: {name} {rate} is not {k} of {n} episodes"));
+            }
+        }
+        Ok(())
+    }
 }
 
 impl SettingReport {
@@ -218,6 +293,11 @@ impl SettingReport {
                     self.timeout
                 ));
             }
+        }
+        match (&self.walls, self.parsed_setting()) {
+            (Some(w), Some(setting)) if !setting.is_paper() => w.check(self)?,
+            (Some(_), _) => return Err(format!("{s}: wall collisions in a setting without walls")),
+            (None, _) => {}
         }
         if self.danger_steps > self.steps {
             return Err(format!(
@@ -269,6 +349,10 @@ impl SettingReport {
             mean_abs_rotation_rad: a.mean_abs_rotation_rad(),
             mean_return: a.mean_return(),
             return_std: None,
+            walls: setting
+                .parse::<Setting>()
+                .is_ok_and(|s| !s.is_paper())
+                .then(|| WallReport::new(a)),
         }
     }
 
@@ -282,7 +366,7 @@ impl SettingReport {
         r
     }
 
-    /// The setting, when the name is one of the six.
+    /// The setting, when the name is a known one.
     pub fn parsed_setting(&self) -> Option<Setting> {
         self.setting.parse().ok()
     }
@@ -312,13 +396,40 @@ fn opt_interval(v: Option<f64>, ci: Option<[f64; 2]>, digits: usize) -> String {
     v.map_or_else(|| "–".to_string(), |v| interval(v, ci, digits))
 }
 
-/// A per-setting table of every metric with its interval.
+/// The three cells of a walled setting's split (wall coll., people coll., frozen), "–" in a
+/// setting without walls.
+fn wall_cells(r: &SettingReport, digits: usize) -> String {
+    match &r.walls {
+        Some(w) => format!(
+            " {} | {} | {} |",
+            interval(w.wall_collision, Some(w.wall_collision_ci95), digits),
+            interval(w.people_collision, Some(w.people_collision_ci95), digits),
+            interval(w.frozen_robot, Some(w.frozen_robot_ci95), digits),
+        ),
+        None => " – | – | – |".into(),
+    }
+}
+
+/// Headers of [`wall_cells`].
+const WALL_COLUMNS: &str = " Wall coll. | People coll. | Frozen |";
+
+/// A per-setting table of every metric with its interval; with a walled setting among them, the
+/// wall collision, people collision and frozen-robot rates too.
 fn detail_table(settings: &[SettingReport]) -> String {
+    let walled = settings.iter().any(|r| r.walls.is_some());
     let mut s = String::from(
-        "| setting | episodes | Succ. | Coll. | Timeout | Nav. Time (s) | Disc. | Path (m) | mean abs dθ (rad/step) | return |\n|---|---|---|---|---|---|---|---|---|---|\n",
+        "| setting | episodes | Succ. | Coll. | Timeout | Nav. Time (s) | Disc. | Path (m) | mean abs dθ (rad/step) | return |",
     );
+    if walled {
+        s += WALL_COLUMNS;
+    }
+    s += "\n|---|---|---|---|---|---|---|---|---|---|";
+    if walled {
+        s += "---|---|---|";
+    }
+    s.push('\n');
     for r in settings {
-        let _ = writeln!(
+        let _ = write!(
             s,
             "| {} | {} | {} | {} | {} | {} | {:.3} | {} | {:.4} | {:.3} |",
             r.setting,
@@ -332,6 +443,10 @@ fn detail_table(settings: &[SettingReport]) -> String {
             r.mean_abs_rotation_rad,
             r.mean_return,
         );
+        if walled {
+            s += &wall_cells(r, 3);
+        }
+        s.push('\n');
     }
     s
 }
@@ -453,8 +568,12 @@ impl Metric {
         }
     }
 
-    /// The paper's value for `method` on `setting`, where the paper has one.
+    /// The paper's value for `method` on `setting`, where the paper has one (never in a walled
+    /// setting).
     pub fn paper(self, method: &str, setting: Setting) -> Option<f64> {
+        if !setting.is_paper() {
+            return None;
+        }
         let table = match self {
             Metric::NavTime => &PAPER_NAV_TIME,
             Metric::Disc => &PAPER_DISC,
@@ -593,7 +712,14 @@ impl EvalReport {
             self.test_seed_start,
             self.test_seed_start + self.episodes_per_setting as u64 - 1
         );
-        for metric in Metric::ALL {
+        // The paper's layout only when a paper setting was evaluated (a walled evaluation alone
+        // has no cell in it).
+        let paper_settings = self
+            .subjects
+            .iter()
+            .flat_map(|subj| &subj.settings)
+            .any(|r| r.parsed_setting().is_some_and(|s| s.is_paper()));
+        for metric in Metric::ALL.into_iter().filter(|_| paper_settings) {
             let d = metric.digits();
             let _ = writeln!(s, "## {}\n", metric.title());
             let _ = writeln!(s, "| method {PAPER_COLUMNS}");
@@ -617,6 +743,7 @@ impl EvalReport {
             }
             s.push('\n');
         }
+        s += &self.walled_markdown();
         s += "## Details per policy\n\n";
         for subj in &self.subjects {
             let _ = writeln!(
@@ -640,11 +767,63 @@ impl EvalReport {
         s
     }
 
-    /// One row per (policy, setting), every metric and interval bound in its own column.
-    pub fn csv(&self) -> String {
-        let mut s = String::from(
-            "label,method,checkpoint,policy_version,run_seed,trained_setting,setting,episodes,successes,collisions,timeouts,success,success_lo,success_hi,collision,collision_lo,collision_hi,timeout,timeout_lo,timeout_hi,nav_time_s,nav_time_lo_s,nav_time_hi_s,nav_time_std_s,disc,danger_steps,steps,path_length_m,path_length_std_m,mean_abs_rotation_rad,mean_return,return_std,paper_nav_time_s,paper_disc\n",
+    /// The walled settings' table (issue 53): one row per (policy, walled setting), collisions
+    /// split into walls and people and the frozen robots beside success, Nav. Time and Disc.;
+    /// empty without a walled setting.
+    pub fn walled_markdown(&self) -> String {
+        let rows: Vec<(&SubjectReport, &SettingReport, &WallReport)> = self
+            .subjects
+            .iter()
+            .flat_map(|subj| {
+                subj.settings
+                    .iter()
+                    .filter_map(move |r| r.walls.as_ref().map(|w| (subj, r, w)))
+            })
+            .collect();
+        if rows.is_empty() {
+            return String::new();
+        }
+        let mut s = format!(
+            "## Walled settings\n\nCollisions split into walls and people (Wall coll. + People coll. = Coll.); Frozen: timed-out episodes whose robot moved less than {} m over its last {} s (among Timeout). Brackets: 95% intervals.\n\n| method | setting | Succ. | Coll. | Wall coll. | People coll. | Timeout | Frozen | Nav. Time (s) | Disc. |\n|---|---|---|---|---|---|---|---|---|---|\n",
+            sim::episode::FROZEN_DISTANCE_M,
+            sim::episode::FROZEN_WINDOW_S
         );
+        for (subj, r, w) in rows {
+            let _ = writeln!(
+                s,
+                "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {:.3} |",
+                subj.label,
+                r.setting,
+                interval(r.success, r.success_ci95, 3),
+                interval(r.collision, r.collision_ci95, 3),
+                interval(w.wall_collision, Some(w.wall_collision_ci95), 3),
+                interval(w.people_collision, Some(w.people_collision_ci95), 3),
+                interval(r.timeout, r.timeout_ci95, 3),
+                interval(w.frozen_robot, Some(w.frozen_robot_ci95), 3),
+                opt_interval(r.nav_time_s, r.nav_time_ci95_s, 2),
+                r.disc,
+            );
+        }
+        s.push('\n');
+        s
+    }
+
+    /// One row per (policy, setting), every metric and interval bound in its own column; with a
+    /// walled setting in the report, its wall/people collision and frozen-robot counts and rates
+    /// in columns after them (empty for a setting without walls).
+    pub fn csv(&self) -> String {
+        let walled = self
+            .subjects
+            .iter()
+            .flat_map(|subj| &subj.settings)
+            .any(|r| r.walls.is_some());
+        let mut s = String::from(
+            "label,method,checkpoint,policy_version,run_seed,trained_setting,setting,episodes,successes,collisions,timeouts,success,success_lo,success_hi,collision,collision_lo,collision_hi,timeout,timeout_lo,timeout_hi,nav_time_s,nav_time_lo_s,nav_time_hi_s,nav_time_std_s,disc,danger_steps,steps,path_length_m,path_length_std_m,mean_abs_rotation_rad,mean_return,return_std,paper_nav_time_s,paper_disc",
+        );
+        if walled {
+            s += ",wall_collisions,people_collisions,frozen_robots,wall_collision,wall_collision_lo,wall_collision_hi,people_collision,people_collision_lo,people_collision_hi,frozen_robot,frozen_robot_lo,frozen_robot_hi";
+        }
+        s.push('\n');
         let f = |v: Option<f64>| v.map_or(String::new(), |x| format!("{x}"));
         let lo = |c: Option<[f64; 2]>| f(c.map(|c| c[0]));
         let hi = |c: Option<[f64; 2]>| f(c.map(|c| c[1]));
@@ -689,6 +868,23 @@ impl EvalReport {
                     paper(Metric::Disc),
                 ];
                 s += &fields.join(",");
+                if walled {
+                    let w = r.walls.as_ref();
+                    let ci = |c: Option<[f64; 2]>| [lo(c), hi(c)];
+                    let mut extra = vec![
+                        f(w.map(|w| f64::from(w.wall_collisions))),
+                        f(w.map(|w| f64::from(w.people_collisions))),
+                        f(w.map(|w| f64::from(w.frozen_robots))),
+                        f(w.map(|w| w.wall_collision)),
+                    ];
+                    extra.extend(ci(w.map(|w| w.wall_collision_ci95)));
+                    extra.push(f(w.map(|w| w.people_collision)));
+                    extra.extend(ci(w.map(|w| w.people_collision_ci95)));
+                    extra.push(f(w.map(|w| w.frozen_robot)));
+                    extra.extend(ci(w.map(|w| w.frozen_robot_ci95)));
+                    s.push(',');
+                    s += &extra.join(",");
+                }
                 s.push('\n');
             }
         }

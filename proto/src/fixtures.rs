@@ -119,6 +119,9 @@ pub fn eval_report() -> EvalReport {
             mean_return: 0.31,
             path_length_m: 8.7,
             smoothness_rad: 0.05,
+            wall_collision_rate: None,
+            people_collision_rate: None,
+            frozen_rate: None,
         })
         .collect();
     EvalReport {

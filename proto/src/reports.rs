@@ -52,6 +52,15 @@ pub struct SettingReport {
     pub path_length_m: f64,
     /// Mean absolute heading change per step (rad).
     pub smoothness_rad: f64,
+    /// Fraction ending in a collision with a wall, in [0, 1]: only in a walled setting.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub wall_collision_rate: Option<f64>,
+    /// Fraction ending in a collision with a person, in [0, 1]: only in a walled setting.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub people_collision_rate: Option<f64>,
+    /// Fraction timing out with the robot frozen, in [0, 1]: only in a walled setting.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub frozen_rate: Option<f64>,
 }
 
 impl Body for EvalReport {
@@ -75,6 +84,15 @@ impl Body for EvalReport {
             check_finite_f64("settings.mean_return", s.mean_return)?;
             check_finite_f64("settings.path_length_m", s.path_length_m)?;
             check_finite_f64("settings.smoothness_rad", s.smoothness_rad)?;
+            for (field, v) in [
+                ("settings.wall_collision_rate", s.wall_collision_rate),
+                ("settings.people_collision_rate", s.people_collision_rate),
+                ("settings.frozen_rate", s.frozen_rate),
+            ] {
+                if let Some(v) = v {
+                    check_unit_interval(field, v)?;
+                }
+            }
         }
         Ok(())
     }
