@@ -184,7 +184,10 @@ impl Env {
         let (pose, heading) = (self.robot.position, self.robot.heading_rad);
         let slots = crate::walled::people_slots(&self.cfg, self.setting.env).unwrap_or(0);
         let behind = pose - crate::geom::heading(heading) * sensor.range_m;
-        out.extend(std::iter::repeat(behind).take(slots.saturating_sub(self.humans.len())));
+        out.extend(std::iter::repeat_n(
+            behind,
+            slots.saturating_sub(self.humans.len()),
+        ));
         out.extend(crate::walled::obstacle_points(
             w.map(),
             sensor,

@@ -471,7 +471,7 @@ pub(crate) fn generate<R: Rng>(
     };
     // People drawn one after the other can leave no room for the last in a lane: the whole
     // crowd is drawn again (from the same generator, so still a function of the seed).
-    let mut draw_people = |rng: &mut R| -> Result<Vec<HumanState>, ScenarioError> {
+    let draw_people = |rng: &mut R| -> Result<Vec<HumanState>, ScenarioError> {
         let mut placed = vec![(robot.position, robot.goal, robot.radius_m)];
         let mut humans = Vec::new();
         let people = match setting.env {
