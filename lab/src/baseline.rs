@@ -1,5 +1,6 @@
 //! The ORCA robot as a baseline: the paper's metrics over generated episodes of the six settings
-//! ([`run_settings`], [`table`]) or over explicit scenes ([`run_scene_cases`], [`scenes_table`]:
+//! and the walled ones ([`run_settings`], [`table`]: wall and people collisions and frozen robots
+//! apart among walls) or over explicit scenes ([`run_scene_cases`], [`scenes_table`]:
 //! CrowdNav's 500 test scenes beside CrowdNav's own numbers). What `fsrl sim` prints.
 
 use std::path::Path;
@@ -192,18 +193,26 @@ fn opt(v: Option<f64>, digits: usize) -> String {
     v.map_or_else(|| "–".to_string(), |x| format!("{x:.digits$}"))
 }
 
-/// The metrics as a Markdown table, one row per setting plus averages per visibility.
+/// The metrics as a Markdown table, one row per setting plus averages per visibility over the
+/// paper's settings; with a walled setting among the results, its wall collisions, people
+/// collisions and frozen robots in columns of their own ("–" in the other rows).
 ///
 /// Disc. is CrowdNav's danger frequency: a timed-out episode counts as `time_limit_steps`
 /// steps. Under SPEC semantics a timeout takes exactly that many steps, so this is danger steps /
 /// all steps; under `crowdnav` semantics CrowdNav's 97-step timeouts are booked as 100.
 pub fn table(results: &[(Setting, Aggregate)], time_limit_steps: u32) -> String {
+    let walled = results.iter().any(|(s, _)| !s.is_paper());
     let mut s = String::from(
-        "| setting | Succ. | Coll. | Timeout | Nav. Time (s) | Disc. | Path (m) | mean abs dθ (rad/step) |\n|---|---|---|---|---|---|---|---|\n",
+        "| setting | Succ. | Coll. | Timeout | Nav. Time (s) | Disc. | Path (m) | mean abs dθ (rad/step) |",
     );
-    let row = |name: &str, a: &Aggregate| {
-        format!(
-            "| {name} | {:.3} | {:.3} | {:.3} | {} | {:.3} | {} | {:.4} |\n",
+    if walled {
+        s += " Wall coll. | People coll. | Frozen |\n|---|---|---|---|---|---|---|---|---|---|---|\n";
+    } else {
+        s += "\n|---|---|---|---|---|---|---|---|\n";
+    }
+    let row = |name: &str, a: &Aggregate, among_walls: bool| {
+        let mut r = format!(
+            "| {name} | {:.3} | {:.3} | {:.3} | {} | {:.3} | {} | {:.4} |",
             a.success_rate(),
             a.collision_rate(),
             a.timeout_rate(),
@@ -211,15 +220,32 @@ pub fn table(results: &[(Setting, Aggregate)], time_limit_steps: u32) -> String 
             a.danger_frequency(time_limit_steps),
             opt(a.path_length_m(), 2),
             a.mean_abs_rotation_rad()
-        )
+        );
+        match (walled, among_walls) {
+            (false, _) => {}
+            (true, false) => r += " – | – | – |",
+            (true, true) => {
+                r += &format!(
+                    " {:.3} | {:.3} | {:.3} |",
+                    a.wall_collision_rate(),
+                    a.people_collision_rate(),
+                    a.frozen_rate()
+                )
+            }
+        }
+        r.push('\n');
+        r
     };
     for (setting, agg) in results {
-        s += &row(setting.name(), agg);
+        s += &row(setting.name(), agg, !setting.is_paper());
     }
     for visible in [false, true] {
         let mut sum = Aggregate::default();
         let mut n = 0;
-        for (_, agg) in results.iter().filter(|(st, _)| st.robot_visible == visible) {
+        for (_, agg) in results
+            .iter()
+            .filter(|(st, _)| st.is_paper() && st.robot_visible == visible)
+        {
             sum.merge(agg);
             n += 1;
         }
@@ -229,7 +255,7 @@ pub fn table(results: &[(Setting, Aggregate)], time_limit_steps: u32) -> String 
             } else {
                 "invisible (all)"
             };
-            s += &row(label, &sum);
+            s += &row(label, &sum, false);
         }
     }
     s
@@ -279,6 +305,37 @@ mod tests {
         );
         let err = load_scenes(&dir.path().join("missing.csv"), &SimConfig::default()).unwrap_err();
         assert!(format!("{err:#}").contains("cannot read scene file"));
+    }
+
+    #[test]
+    fn walled_settings_get_their_own_columns_and_stay_out_of_the_averages() {
+        let cfg = SimConfig::default();
+        let settings: Vec<Setting> = ["env1-invisible", "env2-invisible", "pillars-invisible"]
+            .iter()
+            .map(|s| s.parse().unwrap())
+            .collect();
+        let results = run_settings(&cfg, &settings, 1000, 4, 0.0).unwrap();
+        let paper = table(&results[..2], cfg.max_steps());
+        assert!(!paper.contains("Wall"), "{paper}");
+        let all = table(&results, cfg.max_steps());
+        let lines: Vec<&str> = all.lines().collect();
+        assert!(
+            lines[0].ends_with("| Wall coll. | People coll. | Frozen |"),
+            "{all}"
+        );
+        assert!(lines[2].starts_with("| env1-invisible |") && lines[2].ends_with("| – | – | – |"));
+        let pillars = &results[2].1;
+        assert!(lines[4].starts_with("| pillars-invisible |"), "{all}");
+        assert!(lines[4].ends_with(&format!(
+            "| {:.3} | {:.3} | {:.3} |",
+            pillars.wall_collision_rate(),
+            pillars.people_collision_rate(),
+            pillars.frozen_rate()
+        )));
+        // The average of the paper's two invisible settings, as without the walled one.
+        let paper_avg = paper.lines().last().unwrap();
+        assert!(paper_avg.starts_with("| invisible (all) |"), "{paper}");
+        assert_eq!(lines[5], format!("{paper_avg} – | – | – |"));
     }
 
     #[test]
