@@ -154,7 +154,8 @@ pub fn run(args: SimArgs) -> anyhow::Result<()> {
         let safety = args.safety_space_m;
         let episode = run_episode_with(&mut env, |env| env.orca_robot_command(safety), true)?;
         let title = format!("ORCA robot on {setting}, seed {seed}");
-        let trace = picture::trace(title.clone(), &episode, &humans, &[]);
+        let map = env.walls().map(|w| w.map());
+        let trace = picture::trace(title.clone(), &episode, &humans, &[], map);
         let times_s = picture::default_times(&trace);
         let svg = viz::to_svg_string(&viz::Trajectory { trace, times_s })
             .with_context(|| format!("cannot draw {}", path.display()))?;

@@ -5,6 +5,11 @@
 //! SARL/FSRL attention over humans, the chosen action's row), on one colour scale for the whole
 //! picture; the number beside it is the weight. Policies without attention (ORCA, LSTM-RL) show
 //! humans in plain colours.
+//!
+//! Static obstacles ([`Obstacle`]) are drawn under everything else: solid ones filled grey, walls
+//! as thick lines, a bounding wall as its outline; the view then holds every obstacle, path and
+//! goal at one scale on both axes. Without obstacles the view is Env 1–3's fixed ±5.5 m square
+//! and every picture is drawn exactly as before walls existed.
 
 use std::path::{Path, PathBuf};
 
@@ -13,7 +18,7 @@ use plotters::coord::Shift;
 use plotters::prelude::*;
 use plotters::style::text_anchor::{HPos, Pos, VPos};
 
-use crate::style::{self, DARK, ROBOT, STANDING};
+use crate::style::{self, DARK, OBSTACLE, ROBOT, STANDING, WALL};
 use crate::{create_parent, fonts, DrawError, Figure, VizError};
 
 /// What does not change over an episode about one human.
@@ -22,6 +27,26 @@ pub struct HumanInfo {
     pub radius_m: f64,
     pub standing: bool,
     pub goal: (f64, f64),
+}
+
+/// What a static obstacle's outline is (the simulator's map kinds).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ObstacleKind {
+    /// A solid obstacle, closed (furniture, a pillar): drawn filled.
+    Solid,
+    /// An open polyline with walls on both sides: drawn as a thick line.
+    Wall,
+    /// A closed bounding wall with the free space inside (a room's outer wall): drawn as a thick
+    /// outline.
+    Boundary,
+}
+
+/// One static obstacle in world coordinates (metres); a closed outline's first vertex is not
+/// repeated.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Obstacle {
+    pub kind: ObstacleKind,
+    pub vertices: Vec<(f64, f64)>,
 }
 
 /// Everyone's position at one instant, and the attention of the decision taken then.
@@ -43,6 +68,8 @@ pub struct EpisodeTrace {
     pub robot_radius_m: f64,
     pub robot_goal: (f64, f64),
     pub humans: Vec<HumanInfo>,
+    /// The static obstacles, the same all episode long (empty on an open floor).
+    pub obstacles: Vec<Obstacle>,
     /// Frames at t = 0 and after every step.
     pub frames: Vec<TraceFrame>,
     /// How the episode ended, e.g. "success after 11.50 s".
@@ -59,6 +86,49 @@ impl EpisodeTrace {
             }
         }
         best
+    }
+
+    /// The world box a walled scene shows, `((x_min, x_max), (y_min, y_max))` in metres: every
+    /// obstacle, body, path and goal, with a margin; `None` on an open floor (the fixed square).
+    fn extent(&self) -> Option<((f64, f64), (f64, f64))> {
+        if self.obstacles.is_empty() {
+            return None;
+        }
+        let mut lo = (f64::INFINITY, f64::INFINITY);
+        let mut hi = (f64::NEG_INFINITY, f64::NEG_INFINITY);
+        let mut add = |p: (f64, f64), r: f64| {
+            if p.0.is_finite() && p.1.is_finite() && r.is_finite() {
+                lo = (lo.0.min(p.0 - r), lo.1.min(p.1 - r));
+                hi = (hi.0.max(p.0 + r), hi.1.max(p.1 + r));
+            }
+        };
+        for o in &self.obstacles {
+            for &v in &o.vertices {
+                add(v, 0.0);
+            }
+        }
+        add(self.robot_goal, GOAL_STAR_M);
+        for h in &self.humans {
+            add(h.goal, 0.1);
+        }
+        for f in &self.frames {
+            add(f.robot, self.robot_radius_m);
+            for (p, h) in f.humans.iter().zip(&self.humans) {
+                add(*p, h.radius_m);
+            }
+        }
+        if !(lo.0 < hi.0 && lo.1 < hi.1) {
+            return None;
+        }
+        Some((
+            (lo.0 - WALLED_MARGIN_M, hi.0 + WALLED_MARGIN_M),
+            (lo.1 - WALLED_MARGIN_M, hi.1 + WALLED_MARGIN_M),
+        ))
+    }
+
+    /// Width over height of [`Self::extent`], `None` on an open floor.
+    fn aspect(&self) -> Option<f64> {
+        self.extent().map(|(x, y)| (x.1 - x.0) / (y.1 - y.0))
     }
 
     fn has_attention(&self) -> bool {
@@ -103,7 +173,23 @@ pub struct Trajectory {
 }
 
 const HALF_M: f64 = 5.5;
+/// Outer radius of the robot goal's star (m).
+const GOAL_STAR_M: f64 = 0.32;
+/// Floor shown around everything in a walled scene (m).
+const WALLED_MARGIN_M: f64 = 0.4;
 const PANEL: u32 = 470;
+/// Narrowest and widest panel of a walled scene (its width follows the scene's shape).
+const WALLED_PANEL_W: (u32, u32) = (280, 760);
+/// Narrowest picture: today's, and wider with walls (the legend holds one more entry).
+const MIN_WIDTH: u32 = 760;
+const MIN_WIDTH_WALLED: u32 = 1040;
+/// Height of the panels of a walled scene at least twice as tall as it is wide (a corridor).
+const PANEL_TALL: u32 = 620;
+/// A chart's margin and label areas (px): (margin, x label area, y label area), large and small.
+const CHART_MARGIN: u32 = 8;
+const LABELS: (u32, u32) = (36, 40);
+const LABELS_SMALL: (u32, u32) = (22, 28);
+const CAPTION_PX: (f64, f64) = (17.0, 15.0);
 const TITLE_H: u32 = 44;
 const LEGEND_H: u32 = 34;
 const FOOT_H: u32 = 28;
@@ -131,6 +217,67 @@ fn star(c: (f64, f64), outer: f64) -> Vec<(f64, f64)> {
 }
 
 type Chart<'a, DB> = ChartContext<'a, DB, Cartesian2d<RangedCoordf64, RangedCoordf64>>;
+type Ranges = ((f64, f64), (f64, f64));
+
+/// `extent` widened about its centre along one axis so that a metre has as many pixels across
+/// as up on a plot of `plot_px` (width, height) pixels.
+fn equal_scale(extent: Ranges, plot_px: (u32, u32)) -> Ranges {
+    let ((x0, x1), (y0, y1)) = extent;
+    let (w, h) = (plot_px.0.max(1) as f64, plot_px.1.max(1) as f64);
+    let m_per_px = ((x1 - x0) / w).max((y1 - y0) / h);
+    let (cx, cy) = ((x0 + x1) / 2.0, (y0 + y1) / 2.0);
+    let (hx, hy) = (m_per_px * w / 2.0, m_per_px * h / 2.0);
+    ((cx - hx, cx + hx), (cy - hy, cy + hy))
+}
+
+/// Draws the static obstacles: solid ones filled with an outline, walls as thick lines, bounding
+/// walls as thick closed outlines.
+fn obstacles<DB: DrawingBackend>(
+    chart: &mut Chart<DB>,
+    trace: &EpisodeTrace,
+    small: bool,
+) -> Result<(), DrawError> {
+    let thick = if small { 3 } else { 4 };
+    for o in &trace.obstacles {
+        // From the middle of the first edge round to it again, so that every corner is joined
+        // (a thick line's ends are cut square) and the ends meet in a straight line.
+        let closed = || match o.vertices.as_slice() {
+            [a, b, ..] => {
+                let mid = ((a.0 + b.0) / 2.0, (a.1 + b.1) / 2.0);
+                let mut v = vec![mid];
+                v.extend(&o.vertices[1..]);
+                v.extend([*a, mid]);
+                v
+            }
+            _ => o.vertices.clone(),
+        };
+        match o.kind {
+            ObstacleKind::Solid => {
+                chart.draw_series(std::iter::once(Polygon::new(
+                    o.vertices.clone(),
+                    OBSTACLE.filled(),
+                )))?;
+                chart.draw_series(std::iter::once(PathElement::new(
+                    closed(),
+                    WALL.stroke_width(1),
+                )))?;
+            }
+            ObstacleKind::Wall => {
+                chart.draw_series(std::iter::once(PathElement::new(
+                    o.vertices.clone(),
+                    WALL.stroke_width(thick),
+                )))?;
+            }
+            ObstacleKind::Boundary => {
+                chart.draw_series(std::iter::once(PathElement::new(
+                    closed(),
+                    WALL.stroke_width(thick),
+                )))?;
+            }
+        }
+    }
+    Ok(())
+}
 
 /// Draws the scene at frame `k` on `area`; `range` is the attention colour scale.
 fn scene<DB: DrawingBackend>(
@@ -141,15 +288,36 @@ fn scene<DB: DrawingBackend>(
     caption: &str,
     small: bool,
 ) -> Result<(), DrawError> {
+    let caption_style = style::bold(if small { CAPTION_PX.1 } else { CAPTION_PX.0 });
+    let (x_labels, y_labels) = if small { LABELS_SMALL } else { LABELS };
+    let (x_range, y_range) = match trace.extent() {
+        None => ((-HALF_M, HALF_M), (-HALF_M, HALF_M)),
+        Some(extent) => {
+            // The plot's pixels: the area less the margins, the label areas and the caption
+            // (as plotters' `titled` takes it: the text and up to 5 px above and below).
+            let caption_h = if caption.is_empty() {
+                0
+            } else {
+                let (_, h) = area.estimate_text_size(caption, &caption_style)?;
+                h + 2 * (h / 2).min(5)
+            };
+            let (w, h) = area.dim_in_pixel();
+            let plot = (
+                w.saturating_sub(2 * CHART_MARGIN + y_labels),
+                h.saturating_sub(2 * CHART_MARGIN + x_labels + caption_h),
+            );
+            equal_scale(extent, plot)
+        }
+    };
     let mut builder = ChartBuilder::on(area);
     if !caption.is_empty() {
-        builder.caption(caption, style::bold(if small { 15.0 } else { 17.0 }));
+        builder.caption(caption, caption_style);
     }
     let mut chart: Chart<DB> = builder
-        .margin(8)
-        .x_label_area_size(if small { 22 } else { 36 })
-        .y_label_area_size(if small { 28 } else { 40 })
-        .build_cartesian_2d(-HALF_M..HALF_M, -HALF_M..HALF_M)?;
+        .margin(CHART_MARGIN)
+        .x_label_area_size(x_labels)
+        .y_label_area_size(y_labels)
+        .build_cartesian_2d(x_range.0..x_range.1, y_range.0..y_range.1)?;
     let mut mesh = chart.configure_mesh();
     mesh.light_line_style(style::GRID)
         .max_light_lines(1)
@@ -170,9 +338,11 @@ fn scene<DB: DrawingBackend>(
         return Ok(());
     };
 
+    obstacles(&mut chart, trace, small)?;
+
     // Goals and paths so far.
     chart.draw_series(std::iter::once(Polygon::new(
-        star(trace.robot_goal, 0.32),
+        star(trace.robot_goal, GOAL_STAR_M),
         RGBColor(0xf1, 0xc4, 0x0f).filled(),
     )))?;
     for (i, h) in trace.humans.iter().enumerate() {
@@ -310,6 +480,9 @@ fn legend_items(trace: &EpisodeTrace) -> Vec<(String, RGBColor)> {
             style::palette(0),
         ));
     }
+    if !trace.obstacles.is_empty() {
+        items.push(("walls and obstacles".to_string(), WALL));
+    }
     items
 }
 
@@ -325,15 +498,43 @@ impl Trajectory {
         }
         ks
     }
+
+    /// A panel's height: [`PANEL`], or [`PANEL_TALL`] for a walled scene at least twice as
+    /// tall as wide.
+    fn panel_height(&self) -> u32 {
+        match self.trace.aspect() {
+            Some(aspect) if aspect <= 0.5 => PANEL_TALL,
+            _ => PANEL,
+        }
+    }
+
+    /// A panel's width: [`PANEL`] on an open floor; with walls, as wide as the scene's shape
+    /// asks at the panel's height, within [`WALLED_PANEL_W`].
+    fn panel_width(&self) -> u32 {
+        match self.trace.aspect() {
+            None => PANEL,
+            Some(aspect) => {
+                let caption_h = CAPTION_PX.0 as u32 + 10;
+                let plot_h = self.panel_height() - 2 * CHART_MARGIN - LABELS.0 - caption_h;
+                let plot_w = (plot_h as f64 * aspect).round() as u32;
+                (plot_w + 2 * CHART_MARGIN + LABELS.1).clamp(WALLED_PANEL_W.0, WALLED_PANEL_W.1)
+            }
+        }
+    }
 }
 
 impl Figure for Trajectory {
     fn size(&self) -> (u32, u32) {
         let n = self.frames().len() as u32;
         let bar = if self.trace.has_attention() { BAR_W } else { 0 };
+        let min_width = if self.trace.obstacles.is_empty() {
+            MIN_WIDTH
+        } else {
+            MIN_WIDTH_WALLED
+        };
         (
-            (n * PANEL + bar).max(760),
-            TITLE_H + LEGEND_H + PANEL + FOOT_H,
+            (n * self.panel_width() + bar).max(min_width),
+            TITLE_H + LEGEND_H + self.panel_height() + FOOT_H,
         )
     }
 
@@ -342,7 +543,7 @@ impl Figure for Trajectory {
         let body = style::titled(root, &trace.title, TITLE_H)?;
         let (legend, body) = body.split_vertically(LEGEND_H);
         style::legend_row(&legend, &legend_items(trace))?;
-        let (panels_area, foot) = body.split_vertically(PANEL);
+        let (panels_area, foot) = body.split_vertically(self.panel_height());
         let ks = self.frames();
         let range = trace.attention_range(&ks);
         let bar = if trace.has_attention() { BAR_W } else { 0 };
@@ -369,8 +570,22 @@ impl Figure for Trajectory {
     }
 }
 
+/// The height of a GIF's scene `side` pixels wide: `side` on an open floor; with walls, as tall
+/// as the scene's shape asks, from 0.6 to 1.6 times `side`.
+fn gif_scene_height(trace: &EpisodeTrace, side: u32) -> u32 {
+    match trace.aspect() {
+        None => side,
+        Some(aspect) => {
+            let plot_w = side.saturating_sub(2 * CHART_MARGIN + LABELS_SMALL.1) as f64;
+            let plot_h = (plot_w / aspect).round() as u32;
+            (plot_h + 2 * CHART_MARGIN + LABELS_SMALL.0).clamp(side * 3 / 5, side * 8 / 5)
+        }
+    }
+}
+
 /// Writes the episode as an animated GIF (one frame every `stride` steps and the final one, the
-/// last held for [`GIF_HOLD_FRAMES`] frames), the scene `side` pixels wide; returns the path.
+/// last held for [`GIF_HOLD_FRAMES`] frames), the scene `side` pixels wide (and as tall on an
+/// open floor; with walls, as the scene's shape asks); returns the path.
 pub fn save_gif(
     trace: &EpisodeTrace,
     path: &Path,
@@ -391,7 +606,7 @@ pub fn save_gif(
         reason,
     };
     let bar = if trace.has_attention() { 80 } else { 0 };
-    let size = (side + bar, side + 34);
+    let size = (side + bar, gif_scene_height(trace, side) + 34);
     let all: Vec<usize> = (0..trace.frames.len()).collect();
     let range = trace.attention_range(&all);
     let root = BitMapBackend::gif(path, size, frame_delay_ms)
@@ -411,10 +626,20 @@ pub fn save_gif(
             } else {
                 format!("{}: t = {t:.2} s", trace.title)
             };
+            // With walls, the heading shrinks to fit the width (open-floor GIFs are drawn as
+            // they always were).
+            let mut font_px = 14.0;
+            if !trace.obstacles.is_empty() {
+                while font_px > 9.0
+                    && top.estimate_text_size(&text, &style::bold(font_px))?.0 + 8 > size.0
+                {
+                    font_px -= 1.0;
+                }
+            }
             top.draw(&Text::new(
                 text,
                 (size.0 as i32 / 2, 17),
-                style::bold(14.0).pos(Pos::new(HPos::Center, VPos::Center)),
+                style::bold(font_px).pos(Pos::new(HPos::Center, VPos::Center)),
             ))?;
             let (scene_area, bar_area) = rest.split_horizontally(side);
             scene(&scene_area, trace, k, range, "", true)?;

@@ -10,7 +10,8 @@
 //! - [`Frontier`]: every validated snapshot of runs as Nav. Time against Disc., beside the
 //!   paper's rows (is the paper's point among the policies a run passes through?);
 //! - [`Trajectory`]: an episode with the attention weight of every human at chosen times (paper
-//!   Fig. 7), and [`save_gif`], the same episode animated.
+//!   Fig. 7), and [`save_gif`], the same episode animated; static obstacles ([`Obstacle`]: solid
+//!   polygons, walls, bounding walls) are drawn with it.
 //!
 //! Inputs are plain data ([`EpisodeTrace`], [`Interval`], ...), so this crate knows nothing of the
 //! simulator, the networks or the file formats of reports. Text is drawn with a TrueType font found
@@ -38,7 +39,10 @@ pub use curves::{
     group_runs, spread, without_seed, CurveGroup, CurveRun, LearningCurves, Spread, ValidationAxis,
     ValidationCurves,
 };
-pub use episode::{save_gif, EpisodeTrace, HumanInfo, TraceFrame, Trajectory, GIF_HOLD_FRAMES};
+pub use episode::{
+    save_gif, EpisodeTrace, HumanInfo, Obstacle, ObstacleKind, TraceFrame, Trajectory,
+    GIF_HOLD_FRAMES,
+};
 pub use error::VizError;
 pub use frontier::{Frontier, FrontierGroup, FrontierPanel};
 

@@ -13,6 +13,10 @@ pub const ROBOT: RGBColor = RGBColor(0xe6, 0x7e, 0x22);
 pub const STANDING: RGBColor = RGBColor(0x70, 0x70, 0x70);
 pub const GRID: RGBColor = RGBColor(0xe4, 0xe4, 0xe4);
 pub const DARK: RGBColor = RGBColor(0x33, 0x33, 0x33);
+/// Fill of solid static obstacles (furniture, pillars).
+pub const OBSTACLE: RGBColor = RGBColor(0xa8, 0xa8, 0xa8);
+/// Walls, bounding walls and the outlines of solid obstacles.
+pub const WALL: RGBColor = RGBColor(0x45, 0x45, 0x45);
 
 /// Series colours (methods, runs, humans).
 pub const PALETTE: [RGBColor; 8] = [

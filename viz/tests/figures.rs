@@ -4,11 +4,12 @@
 use std::collections::HashSet;
 use std::path::{Path, PathBuf};
 
+use sha2::{Digest, Sha256};
 use viz::metrics::{ImitationPoint, Metrics, RlPoint, ValidationPoint};
 use viz::{
     group_runs, save, save_gif, Ablation, CurveRun, EpisodeTrace, HumanInfo, Interval,
-    LearningCurves, OutcomeBars, OutcomeCell, TraceFrame, Trajectory, ValidationAxis,
-    ValidationCurves,
+    LearningCurves, Obstacle, ObstacleKind, OutcomeBars, OutcomeCell, TraceFrame, Trajectory,
+    ValidationAxis, ValidationCurves,
 };
 
 fn out_dir() -> (Option<tempfile::TempDir>, PathBuf) {
@@ -317,6 +318,7 @@ fn trace(attention: bool) -> EpisodeTrace {
         robot_radius_m: 0.3,
         robot_goal: (0.0, 4.0),
         humans,
+        obstacles: Vec::new(),
         frames,
         outcome: "success after 7.50 s".into(),
     }
@@ -387,4 +389,156 @@ fn gif_has_a_frame_per_step_plus_the_hold() {
         ..t
     };
     assert!(save_gif(&empty, &dir.join("empty.gif"), 300, 100, 1).is_err());
+}
+
+fn sha256(path: &Path) -> String {
+    format!("{:x}", Sha256::digest(std::fs::read(path).unwrap()))
+}
+
+/// Without obstacles an episode is drawn byte for byte as before walls existed: the SHA-256s
+/// of the SVG, PNG and GIF drawn then (with DejaVu Sans, whose text widths place the legend).
+#[test]
+fn an_open_floor_is_drawn_as_before_walls() {
+    let font = viz::fonts::ensure().unwrap();
+    assert!(
+        font.ends_with("DejaVuSans.ttf"),
+        "the reference pictures were drawn with DejaVu Sans, not {}: install fonts-dejavu-core",
+        font.display()
+    );
+    let (_keep, dir) = out_dir();
+    let fig = Trajectory {
+        trace: trace(true),
+        times_s: vec![2.0, 5.0, 7.5],
+    };
+    let files = save(&fig, &dir.join("open-floor")).unwrap();
+    assert_eq!(
+        sha256(&files[0]),
+        "7ac228bb211a17faeb5a6aa4321cde076f763b78bcdba1ff7d96c74ce48d481f"
+    );
+    assert_eq!(
+        sha256(&files[1]),
+        "159c1f06238d47c74b2cf09fea0d9fc0eadc2bc570158d771616ed7905abeb02"
+    );
+    let plain = Trajectory {
+        trace: trace(false),
+        times_s: vec![3.0],
+    };
+    let files = save(&plain, &dir.join("open-floor-plain")).unwrap();
+    assert_eq!(
+        sha256(&files[0]),
+        "ec1a30c79304571039b29df7c82eda0ed4c702752f9c3351a852deeb6cfc30a2"
+    );
+    let gif = save_gif(&trace(true), &dir.join("open-floor.gif"), 300, 100, 1).unwrap();
+    assert_eq!(
+        sha256(&gif),
+        "b1b94b5ccd37cd26b703fdfbbc542e3003271b35379f55930ae8830373545d21"
+    );
+}
+
+/// The synthetic episode in a corridor 2 m wide and 14 m long (walls at x = ±1 from y = −7 to
+/// 7), with a box and a bounding wall around the far end.
+fn walled_trace() -> EpisodeTrace {
+    let mut t = trace(false);
+    t.obstacles = vec![
+        Obstacle {
+            kind: ObstacleKind::Wall,
+            vertices: vec![(-1.0, -7.0), (-1.0, 7.0)],
+        },
+        Obstacle {
+            kind: ObstacleKind::Wall,
+            vertices: vec![(1.0, 7.0), (1.0, -7.0)],
+        },
+        Obstacle {
+            kind: ObstacleKind::Solid,
+            vertices: vec![(0.5, 5.0), (0.9, 5.0), (0.9, 5.5), (0.5, 5.5)],
+        },
+        Obstacle {
+            kind: ObstacleKind::Boundary,
+            vertices: vec![(-1.0, 6.0), (-1.0, 7.0), (1.0, 7.0), (1.0, 6.0)],
+        },
+    ];
+    t.outcome = "wall collision at 7.50 s".into();
+    t
+}
+
+/// Points `x,y` of every polyline drawn in `stroke` at `width` px.
+fn polylines(svg: &str, stroke: &str, width: &str) -> Vec<Vec<(f64, f64)>> {
+    let doc = roxmltree::Document::parse(svg).unwrap();
+    doc.descendants()
+        .filter(|n| {
+            n.tag_name().name() == "polyline"
+                && n.attribute("stroke") == Some(stroke)
+                && n.attribute("stroke-width") == Some(width)
+        })
+        .map(|n| {
+            n.attribute("points")
+                .unwrap()
+                .split_whitespace()
+                .map(|p| {
+                    let (x, y) = p.split_once(',').unwrap();
+                    (x.parse().unwrap(), y.parse().unwrap())
+                })
+                .collect()
+        })
+        .collect()
+}
+
+/// Walls are thick lines, a bounding wall a thick closed outline, a solid obstacle a grey
+/// polygon with a thin outline, in every panel; the view holds them (a corridor 14 m long does
+/// not fit Env 1–3's ±5.5 m square) at one scale on both axes, and the legend names them.
+#[test]
+fn walls_are_drawn_in_view_at_one_scale() {
+    let (_keep, dir) = out_dir();
+    let fig = Trajectory {
+        trace: walled_trace(),
+        times_s: vec![2.0, 5.0, 7.5],
+    };
+    let files = save(&fig, &dir.join("walled")).unwrap();
+    let (w, h, fills, _, text) = svg_facts(&files[0]);
+    let svg = std::fs::read_to_string(&files[0]).unwrap();
+    assert!(text.contains("walls and obstacles"));
+    assert!(text.contains("wall collision at 7.50 s"));
+    assert_eq!(count(&fills, "#A8A8A8"), 3, "one box per panel");
+    let thick = polylines(&svg, "#454545", "4");
+    assert_eq!(thick.len(), 3 * 3, "two walls and a boundary per panel");
+    // The boundary is closed: it starts and ends in the middle of its first edge.
+    let closed: Vec<_> = thick.iter().filter(|p| p.len() > 2).collect();
+    assert_eq!(closed.len(), 3);
+    assert!(closed.iter().all(|p| p.first() == p.last() && p.len() == 6));
+    let thin = polylines(&svg, "#454545", "1");
+    assert_eq!(thin.len(), 3, "the box's outline per panel");
+    // Every wall is inside the panels (below the title, legend and captions; above the
+    // axis labels and the foot).
+    let walls: Vec<_> = thick.iter().filter(|p| p.len() == 2).collect();
+    for p in thick.iter().flatten() {
+        assert!(p.0 > 0.0 && p.0 < w, "{p:?} outside 0..{w}");
+        assert!(
+            p.1 > 44.0 + 34.0 + 20.0 && p.1 < h - 28.0 - 30.0,
+            "{p:?} outside"
+        );
+    }
+    // One scale: the corridor's 2 m across take a seventh of the pixels its 14 m along do.
+    let (left, right) = (walls[0], walls[1]);
+    let across = (right[0].0 - left[0].0).abs();
+    let along = (left[1].1 - left[0].1).abs();
+    assert!(
+        (across * 7.0 / along - 1.0).abs() < 0.03,
+        "{across} px across, {along} px along"
+    );
+    // Room for the legend's extra entry.
+    assert!(w >= 1040.0, "{w}");
+    check_png(&files[1], viz::Figure::size(&fig));
+
+    // The GIF of a tall scene is taller than wide, a frame per step plus the hold.
+    let path = save_gif(&walled_trace(), &dir.join("walled.gif"), 300, 100, 1).unwrap();
+    let mut d = gif::DecodeOptions::new()
+        .read_info(std::fs::File::open(&path).unwrap())
+        .unwrap();
+    assert_eq!(d.width(), 300);
+    assert!(d.height() > 400, "{}", d.height());
+    let mut frames = 0;
+    while d.read_next_frame().unwrap().is_some() {
+        frames += 1;
+    }
+    assert_eq!(frames, 31 + viz::GIF_HOLD_FRAMES);
 }
