@@ -12,7 +12,7 @@
 use std::f64::consts::{PI, TAU};
 
 use crate::geom::{heading, Vec2};
-use crate::map::{cross, Segment, StaticMap};
+use crate::map::{cross, Defect, MapError, Segment, Shape, StaticMap};
 
 /// Default largest fraction of NaN ranges [`points`] accepts: above it the scan is refused, so
 /// that the robot stops rather than driving blind.
@@ -399,11 +399,85 @@ fn closest_in_wedge(s: &Segment, apex: Vec2, edges: Option<(Vec2, Vec2)>) -> Opt
     Some(s.a + e * t)
 }
 
+/// Points nearer than this to the last point kept are duplicates: [`scan_map`] skips them
+/// (a repeated vertex would be a zero-length edge; 0.1 mm is below what a lidar resolves).
+pub const SCAN_DUPLICATE_M: f64 = 1.0e-4;
+/// Half the length of the short wall [`scan_map`] puts at a point with no neighbour within the
+/// gap (a thin pole, a chair leg: one return is an obstacle too).
+pub const SCAN_POLE_HALF_M: f64 = 0.005;
+
+/// The walls a scan shows, as a map: consecutive points (in beam order) closer than
+/// `max_gap_m` are joined into one wall polyline, a farther one starts the next polyline. A
+/// point within [`SCAN_DUPLICATE_M`] of the last point kept is skipped, as is a point that is
+/// not finite; a point alone (no neighbour within the gap) becomes a wall
+/// 2·[`SCAN_POLE_HALF_M`] long centred on it. A polyline that would cross or fold back on
+/// itself (points of several sensors, noise along a line seen edge-on) is cut there into
+/// polylines that do not, so the map is always valid ([`StaticMap::new`]); shapes may overlap.
+/// A `max_gap_m` that is not a positive number joins nothing.
+pub fn scan_map(points: &[Vec2], max_gap_m: f64) -> StaticMap {
+    let mut chains: Vec<Vec<Vec2>> = Vec::new();
+    let mut last: Option<Vec2> = None;
+    for &p in points {
+        if !(p.x.is_finite() && p.y.is_finite()) {
+            continue;
+        }
+        match last {
+            Some(q) if (p - q).norm() <= SCAN_DUPLICATE_M => continue,
+            Some(q) if (p - q).norm() <= max_gap_m => {
+                chains.last_mut().expect("a chain is open").push(p);
+            }
+            _ => chains.push(vec![p]),
+        }
+        last = Some(p);
+    }
+    let pole = Vec2::new(SCAN_POLE_HALF_M, 0.0);
+    let mut shapes: Vec<Shape> = chains
+        .into_iter()
+        .map(|c| match c[..] {
+            [p] => Shape::wall(vec![p - pole, p + pole]),
+            _ => Shape::wall(c),
+        })
+        .collect();
+    // Each round cuts every faulty polyline once, at the later vertex of its first problem:
+    // every piece keeps at least two vertices, and the rounds end (at worst one edge each).
+    loop {
+        let problems = match StaticMap::new(shapes.clone()) {
+            Ok(map) => return map,
+            Err(MapError::Invalid(problems)) => problems,
+            Err(other) => unreachable!("StaticMap::new refuses only with Invalid: {other}"),
+        };
+        let mut cut_at: Vec<Option<usize>> = vec![None; shapes.len()];
+        for p in &problems {
+            let at = match p.defect {
+                Defect::SelfIntersection { edges: (i, j) }
+                | Defect::FoldsBack { edges: (i, j) } => i.max(j),
+                // Skipped duplicates and finite points leave no other defect in a polyline;
+                // should one come, the shape is cut into its edges.
+                _ => 1,
+            };
+            cut_at[p.shape].get_or_insert(at.max(1));
+        }
+        let mut next = Vec::with_capacity(shapes.len() + problems.len());
+        for (shape, cut) in shapes.into_iter().zip(cut_at) {
+            match cut {
+                Some(j) if j + 1 < shape.vertices.len() => {
+                    next.push(Shape::wall(shape.vertices[..=j].to_vec()));
+                    next.push(Shape::wall(shape.vertices[j..].to_vec()));
+                }
+                Some(_) => {
+                    next.extend(shape.vertices.windows(2).map(|w| Shape::wall(w.to_vec())));
+                }
+                None => next.push(shape),
+            }
+        }
+        shapes = next;
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::map::tests::{corridor, room_with_box};
-    use crate::map::Shape;
 
     fn v(x: f64, y: f64) -> Vec2 {
         Vec2::new(x, y)
@@ -690,5 +764,122 @@ mod tests {
             map_sector_nearest(&single, v(0.0, 0.0), PI, 2, 4.0),
             vec![None, Some(v(1.0, 0.0))]
         );
+    }
+
+    /// Every vertex of `map` lies on a shape of `truth` (within `tol_m`), and every point of
+    /// `truth` a dense scan sees is within `tol_m` of `map` (the scan's walls are the walls).
+    fn assert_map_traces(map: &StaticMap, truth: &StaticMap, points: &[Vec2], tol_m: f64) {
+        for s in map.shapes() {
+            for &p in &s.vertices {
+                assert!(truth.distance_m(p) < tol_m, "vertex {p:?} off the walls");
+            }
+        }
+        for &p in points {
+            assert!(
+                map.distance_m(p) < tol_m,
+                "scan point {p:?} not on the scan's map"
+            );
+        }
+    }
+
+    #[test]
+    fn scan_map_of_a_corridor_is_its_two_walls() {
+        let truth = corridor();
+        let g = ScanGeometry::default_360();
+        let pose = v(0.0, -0.5);
+        let scan = simulate(&truth, &[], pose, 0.3, &g);
+        let pts = points(&scan, pose, 0.3, DEFAULT_MAX_NAN_FRACTION)
+            .unwrap()
+            .points;
+        let map = scan_map(&pts, 0.3);
+        // Both walls, each cut where the beams toward its ends run out of range or where
+        // consecutive beams hit the two walls (no joining across the corridor).
+        assert!(map.shapes().len() >= 2, "{}", map.shapes().len());
+        assert!(map
+            .shapes()
+            .iter()
+            .all(|s| s.kind == crate::map::ShapeKind::Wall));
+        assert_map_traces(&map, &truth, &pts, 1e-5);
+        // No segment crosses the corridor.
+        for s in map.segments() {
+            assert!((s.a.x - s.b.x).abs() < 0.3, "{s:?} crosses the corridor");
+        }
+        // The robot sees the same walls in every sector (within the beams' spacing).
+        let from_map = map_sector_nearest(&map, pose, 0.3, 12, 4.0);
+        let from_truth = map_sector_nearest(&truth, pose, 0.3, 12, 4.0);
+        for (a, b) in from_map.iter().zip(&from_truth) {
+            match (a, b) {
+                (Some(a), Some(b)) => assert!((a - b).norm() < 0.03, "{a:?} vs {b:?}"),
+                (a, b) => assert_eq!(a.is_some(), b.is_some()),
+            }
+        }
+    }
+
+    #[test]
+    fn scan_map_skips_duplicates_and_joins_within_the_gap_only() {
+        let pts = [
+            v(0.0, 0.0),
+            v(0.0, 0.0),
+            v(0.0, 0.00005),
+            v(0.1, 0.0),
+            v(0.2, 0.0),
+            v(f64::NAN, 0.0),
+            v(0.2, f64::INFINITY),
+            v(1.0, 0.0),
+            v(1.1, 0.0),
+            v(3.0, 3.0),
+        ];
+        let map = scan_map(&pts, 0.15);
+        let shapes: Vec<Vec<Vec2>> = map.shapes().iter().map(|s| s.vertices.clone()).collect();
+        assert_eq!(
+            shapes,
+            vec![
+                vec![v(0.0, 0.0), v(0.1, 0.0), v(0.2, 0.0)],
+                vec![v(1.0, 0.0), v(1.1, 0.0)],
+                // A point alone is a 1 cm wall, centred on it.
+                vec![
+                    v(3.0 - SCAN_POLE_HALF_M, 3.0),
+                    v(3.0 + SCAN_POLE_HALF_M, 3.0)
+                ],
+            ]
+        );
+        // Without a gap nothing joins; an empty scan is an open floor.
+        assert_eq!(scan_map(&pts, f64::NAN).shapes().len(), 6);
+        assert_eq!(scan_map(&pts, 0.0).shapes().len(), 6);
+        assert!(scan_map(&[], 0.3).is_empty());
+        // The map's walls are RVO2 obstacles.
+        let lists: Vec<Vec<crate::geom::Vec2f>> = map
+            .rvo2_obstacles()
+            .into_iter()
+            .map(|l| {
+                l.iter()
+                    .map(|p| crate::geom::Vec2f::new(p.x as f32, p.y as f32))
+                    .collect()
+            })
+            .collect();
+        assert!(crate::rvo::ObstacleSet::new(&lists).is_ok());
+    }
+
+    #[test]
+    fn scan_map_cuts_a_polyline_that_would_cross_or_fold_back() {
+        // A zigzag that crosses itself (a square's diagonals), and points running back along
+        // a line (noise on a wall seen edge-on): joined as given they are not a valid wall.
+        let crossing = [v(0.0, 0.0), v(1.0, 1.0), v(1.0, 0.0), v(0.0, 1.0)];
+        assert!(StaticMap::new(vec![Shape::wall(crossing.to_vec())]).is_err());
+        let map = scan_map(&crossing, 2.0);
+        assert!(map.shapes().len() >= 2);
+        assert_map_traces(&map, &map.clone(), &crossing, 1e-12);
+        let back = [v(0.0, 0.0), v(0.2, 0.0), v(0.1, 0.0), v(0.3, 0.0)];
+        assert!(StaticMap::new(vec![Shape::wall(back.to_vec())]).is_err());
+        let map = scan_map(&back, 1.0);
+        assert!(map.shapes().len() >= 2);
+        for &p in &back {
+            assert!(map.distance_m(p) < 1e-12);
+        }
+        // Every segment of the input is a segment of the map.
+        let segs: Vec<(Vec2, Vec2)> = map.segments().iter().map(|s| (s.a, s.b)).collect();
+        for w in back.windows(2) {
+            assert!(segs.contains(&(w[0], w[1])), "{:?} missing", w);
+        }
     }
 }

@@ -175,13 +175,22 @@ pub struct ShapePlace {
     pub line: usize,
 }
 
+impl ShapePlace {
+    /// `obstacle 2 (polygon)` or `case 3's obstacle 0 (wall)`, without its line.
+    pub fn name(&self) -> String {
+        match self.case {
+            None => format!("obstacle {} ({})", self.index, self.kind),
+            Some(case) => format!("case {case}'s obstacle {} ({})", self.index, self.kind),
+        }
+    }
+}
+
+/// `obstacle 2 (polygon, line 14)`.
 impl fmt::Display for ShapePlace {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        match self.case {
-            None => write!(f, "obstacle {}", self.index)?,
-            Some(case) => write!(f, "case {case}'s obstacle {}", self.index)?,
-        }
-        write!(f, " ({}, line {})", self.kind, self.line)
+        let name = self.name();
+        let name = name.strip_suffix(')').unwrap_or(&name);
+        write!(f, "{name}, line {})", self.line)
     }
 }
 
@@ -203,7 +212,7 @@ pub enum Contact {
 pub enum SceneProblem {
     /// A shape the map refuses ([`crate::map::Defect`]: too few vertices, non-finite
     /// coordinates, wrong orientation, self-intersection, ...).
-    #[error("line {}: {place} {}", place.line, defect_text(.problem))]
+    #[error("line {}: {} {}", place.line, place.name(), defect_text(.problem))]
     Shape {
         place: ShapePlace,
         problem: ShapeProblem,
@@ -281,6 +290,9 @@ pub enum SceneProblem {
     /// A file without `[[cases]]`.
     #[error("the scene file has no case (add a [[cases]] table with a robot)")]
     NoCases,
+    /// A map file ([`parse_toml_map`]) without `[[obstacles]]`.
+    #[error("the map file has no obstacle (add [[obstacles]] tables with kind and vertices)")]
+    NoObstacles,
 }
 
 impl SceneProblem {
@@ -296,7 +308,7 @@ impl SceneProblem {
             | SceneProblem::Reachability { line, .. }
             | SceneProblem::Walls { line, .. }
             | SceneProblem::DuplicateCase { line, .. } => Some(*line),
-            SceneProblem::NoCases => None,
+            SceneProblem::NoCases | SceneProblem::NoObstacles => None,
         }
     }
 }
@@ -446,6 +458,50 @@ fn number(
 
 fn finite(p: [f64; 2]) -> bool {
     p[0].is_finite() && p[1].is_finite()
+}
+
+/// A map file: the scene format's `[[obstacles]]` and nothing else.
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct DocMap {
+    #[serde(default)]
+    obstacles: Vec<Spanned<DocShape>>,
+}
+
+/// Parses a map file: `[[obstacles]]` tables exactly as in a scene file (see the module docs)
+/// and nothing else (no cases: a served robot's map, in its odometry frame, `fsrl serve
+/// --map`). Every shape is checked as in a scene file and every problem reported at once, each
+/// naming its line and obstacle; a file without obstacles is refused.
+pub fn parse_toml_map(text: &str) -> Result<StaticMap, SceneError> {
+    let doc: DocMap = toml::from_str(text).map_err(|e| SceneError::Toml {
+        line: e.span().map(|s| line_of(text, s.start)),
+        message: e.to_string().trim_end().to_string(),
+    })?;
+    let mut problems = Vec::new();
+    if doc.obstacles.is_empty() {
+        problems.push(SceneProblem::NoObstacles);
+    }
+    let checked = check_shapes(text, None, &doc.obstacles, &mut problems);
+    if !problems.is_empty() {
+        return Err(SceneError::Invalid(problems));
+    }
+    let shapes = checked.into_iter().map(|c| c.shape).collect();
+    StaticMap::new(shapes).map_err(|e| match e {
+        MapError::Invalid(list) => SceneError::Invalid(
+            list.into_iter()
+                .map(|problem| SceneProblem::Shape {
+                    place: ShapePlace {
+                        case: None,
+                        index: problem.shape,
+                        kind: problem.kind,
+                        line: line_of(text, doc.obstacles[problem.shape].span().start),
+                    },
+                    problem,
+                })
+                .collect(),
+        ),
+        other => unreachable!("StaticMap::new refuses only with Invalid: {other}"),
+    })
 }
 
 /// Parses fsrl's TOML scene text (see the module docs); defaults from `cfg`.
