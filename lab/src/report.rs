@@ -239,7 +239,9 @@ impl WallReport {
             ),
             ("frozen_robot", self.frozen_robots, self.frozen_robot),
         ] {
-            if !((f64::from(k) / n - rate).abs() <= 1e-9) {
+            // NaN fails too.
+            let matches = (f64::from(k) / n - rate).abs() <= 1e-9;
+            if !matches {
                 return Err(format!("{s}: {name} {rate} is not {k} of {n} episodes"));
             }
         }
