@@ -7,7 +7,8 @@
 # was trained in (docs/results/grid/<model>.{md,json}, kept while the report's checkpoint_sha256
 # is the model file's SHA-256), drawn as the paper's Fig. 5 grid (bars-grid.png) and put in one
 # table,
-# mean ± std over seeds (docs/results/grid-compare/compare.md).
+# mean ± std over seeds (docs/results/grid-compare/compare.md); and the ORCA robot's test episode
+# in each walled setting (orca-<setting>.{svg,png,gif}, walls drawn).
 #   docs/make-pictures.sh [FSRL_BINARY]
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -55,6 +56,12 @@ fi
   --title "FSRL env1-invisible: five schedules (Experiments 7-10)" --out "$OUT/curves-schedules"
 rm -f "$OUT"/curves-schedules.svg "$OUT"/curves-schedules.png
 "$FSRL" plot episode models/fsrl-env1-invisible-s0.fsrlm --seed 1000 --out "$OUT/episode" --gif-size 300 --stride 2
+# The walled settings (issue 53): the ORCA-driven robot's test episode (seed 1000) in each, its
+# walls and obstacles drawn, as orca-<setting>.{svg,png,gif}.
+for setting in corridor doorway room-invisible room-visible pillars-invisible pillars-visible; do
+  "$FSRL" plot episode --orca --setting "$setting" --seed 1000 --out "$OUT/orca-$setting" \
+    --gif-size 300 --stride 3
+done
 cp "$RUNS/eval-six/eval.md" "$OUT/eval.md"
 GRID=docs/results/grid
 mkdir -p "$GRID"
