@@ -708,12 +708,6 @@ impl EvalReport {
     /// The paper's layout, one table per metric, our rows with the paper's beside them; then
     /// every subject's per-setting details.
     pub fn markdown(&self) -> String {
-        let mut s = format!(
-            "# Evaluation\n\n{} test episodes per setting, seeds {}..{}. Rates carry 95% Wilson intervals and Nav. Time a 95% t interval, in brackets; AVG is the mean over Env 1–3. Rows marked (paper) are the paper's Tables I–II (SPEC §8); the paper has no table of rates (only its Fig. 5).\n\n",
-            self.episodes_per_setting,
-            self.test_seed_start,
-            self.test_seed_start + self.episodes_per_setting as u64 - 1
-        );
         // The paper's layout only when a paper setting was evaluated (a walled evaluation alone
         // has no cell in it).
         let paper_settings = self
@@ -721,6 +715,17 @@ impl EvalReport {
             .iter()
             .flat_map(|subj| &subj.settings)
             .any(|r| r.parsed_setting().is_some_and(|s| s.is_paper()));
+        let mut s = format!(
+            "# Evaluation\n\n{} test episodes per setting, seeds {}..{}. Rates carry 95% Wilson intervals and Nav. Time a 95% t interval, in brackets{}\n\n",
+            self.episodes_per_setting,
+            self.test_seed_start,
+            self.test_seed_start + self.episodes_per_setting as u64 - 1,
+            if paper_settings {
+                "; AVG is the mean over Env 1–3. Rows marked (paper) are the paper's Tables I–II (SPEC §8); the paper has no table of rates (only its Fig. 5)."
+            } else {
+                "."
+            }
+        );
         for metric in Metric::ALL.into_iter().filter(|_| paper_settings) {
             let d = metric.digits();
             let _ = writeln!(s, "## {}\n", metric.title());

@@ -266,6 +266,7 @@ fn a_walled_setting_evaluated_end_to_end_reports_the_three_rates_and_a_paper_set
     };
     let md = walled_only.markdown();
     assert!(!md.contains("## Succ. (success rate)"), "{md}");
+    assert!(!md.contains("AVG") && !md.contains("(paper)"), "{md}");
     assert!(md.contains("## Walled settings"), "{md}");
 }
 
