@@ -26,7 +26,8 @@ pub enum PlotCommand {
     Curves(CurvesArgs),
     /// The reward ablation: sarl (R_c), sarl+foresight (+R_f), sarl+efficiency (+R_t), fsrl (all).
     Ablation(AblationArgs),
-    /// One episode: trajectory with every human's attention weight at chosen times, and a GIF.
+    /// One episode: trajectory with every human's attention weight at chosen times, and a GIF;
+    /// a walled setting's walls and obstacles are drawn with it.
     Episode(EpisodeArgs),
     /// Every validated snapshot of runs as Nav. Time against Disc., beside the paper's rows: is
     /// the paper's point among the policies the runs passed through? Writes a table too, with
