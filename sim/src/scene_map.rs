@@ -616,7 +616,7 @@ pub fn parse_toml_scenes(text: &str, cfg: &SimConfig) -> Result<SceneFile, Scene
                 }
             };
             for (end, p) in [(End::Start, start), (End::Goal, goal)] {
-                if !finite(p) && !(h.standing && end == End::Goal) {
+                if !finite(p) && (end == End::Start || !h.standing) {
                     problems.push(SceneProblem::NonFinitePoint {
                         line: hline,
                         case,

@@ -135,11 +135,11 @@ fn a_shape_with_too_few_vertices_is_refused() {
                 [[cases.obstacles]]\nkind = \"wall\"\nvertices = [[3, 0]]\n";
     refused(
         text,
-        "line 3: case 0's obstacle 0 (wall, line 3) has 1 vertex; a wall needs at least 2",
+        "line 3: case 0's obstacle 0 (wall) has 1 vertex; a wall needs at least 2",
     );
     refused(
         &with_obstacles("[[obstacles]]\nkind = \"polygon\"\nvertices = [[3, 0], [4, 0]]\n"),
-        "line 1: obstacle 0 (polygon, line 1) has 2 vertices; a polygon needs at least 3",
+        "line 1: obstacle 0 (polygon) has 2 vertices; a polygon needs at least 3",
     );
 }
 
@@ -149,7 +149,7 @@ fn a_clockwise_polygon_is_refused() {
         &with_obstacles(
             "[[obstacles]]\nkind = \"polygon\"\nvertices = [[2, 0], [2, 1], [3, 1], [3, 0]]\n",
         ),
-        "line 1: obstacle 0 (polygon, line 1) is listed clockwise; solid polygons are listed \
+        "line 1: obstacle 0 (polygon) is listed clockwise; solid polygons are listed \
          counter-clockwise",
     );
 }
@@ -160,7 +160,7 @@ fn a_counter_clockwise_boundary_is_refused() {
         &with_obstacles(
             "[[obstacles]]\nkind = \"boundary\"\nvertices = [[-5, -5], [5, -5], [5, 5], [-5, 5]]\n",
         ),
-        "line 1: obstacle 0 (boundary, line 1) is listed counter-clockwise; a bounding wall is \
+        "line 1: obstacle 0 (boundary) is listed counter-clockwise; a bounding wall is \
          listed clockwise",
     );
 }
@@ -171,7 +171,7 @@ fn a_self_intersecting_polygon_is_refused() {
         &with_obstacles(
             "[[obstacles]]\nkind = \"polygon\"\nvertices = [[2, 0], [3, 1], [3, 0], [2, 1]]\n",
         ),
-        "line 1: obstacle 0 (polygon, line 1) crosses itself: edges 0 and 2 intersect or touch \
+        "line 1: obstacle 0 (polygon) crosses itself: edges 0 and 2 intersect or touch \
          (edge k runs from vertex k to the next)",
     );
 }
@@ -182,12 +182,12 @@ fn non_finite_vertices_are_refused() {
         &with_obstacles(
             "[[obstacles]]\nkind = \"polygon\"\nvertices = [[2, 0], [nan, 0], [3, 1]]\n",
         ),
-        "line 1: obstacle 0 (polygon, line 1) vertex 1 is (NaN, 0); coordinates must be finite \
+        "line 1: obstacle 0 (polygon) vertex 1 is (NaN, 0); coordinates must be finite \
          numbers",
     );
     refused(
         &with_obstacles("[[obstacles]]\nkind = \"wall\"\nvertices = [[2, 0], [2, -inf]]\n"),
-        "line 1: obstacle 0 (wall, line 1) vertex 1 is (2, -inf); coordinates must be finite \
+        "line 1: obstacle 0 (wall) vertex 1 is (2, -inf); coordinates must be finite \
          numbers",
     );
 }
@@ -294,7 +294,7 @@ fn every_problem_is_reported_at_once() {
     assert_eq!(
         err.to_string(),
         "invalid scenes (4 problems):\n  \
-         - line 1: obstacle 0 (polygon, line 1) is listed clockwise; solid polygons are listed \
+         - line 1: obstacle 0 (polygon) is listed clockwise; solid polygons are listed \
          counter-clockwise\n  \
          - line 5: case 0: the robot's radius_m must be a finite number > 0, got -1\n  \
          - line 6: case 0 appears again (first at line 4); case ids must differ\n  \
