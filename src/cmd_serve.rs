@@ -31,6 +31,10 @@ pub struct RosArgs {
     pub people_topic: String,
     #[arg(long, default_value = "cmd_vel")]
     pub cmd_vel_topic: String,
+    /// The laser scan (sensor_msgs/LaserScan): read by `fsrl serve --scan`, published by
+    /// `fsrl sim --as-robot` among walls.
+    #[arg(long, default_value = "scan")]
+    pub scan_topic: String,
     /// People message: people (people_msgs/People), spencer (TrackedPersons), pedsim (AgentStates).
     #[arg(long, default_value = "people")]
     pub people_format: PeopleFormat,
@@ -55,11 +59,12 @@ impl RosArgs {
         }
     }
     pub fn topics(&self) -> Topics {
-        let [odom, goal, people, cmd_vel] = [
+        let [odom, goal, people, cmd_vel, scan] = [
             &self.odom_topic,
             &self.goal_topic,
             &self.people_topic,
             &self.cmd_vel_topic,
+            &self.scan_topic,
         ]
         .map(|t| t.clone());
         Topics {
@@ -67,6 +72,7 @@ impl RosArgs {
             goal,
             people,
             cmd_vel,
+            scan,
         }
     }
     pub fn zenoh(&self) -> transport::ZenohConfig {
@@ -127,12 +133,60 @@ pub struct ServeArgs {
     /// with --planning-top-k) [default: every core, at most 4].
     #[arg(long)]
     pub threads: Option<usize>,
+    /// Static obstacles in the odometry frame: a TOML file of `[[obstacles]]` tables in the
+    /// scene format (kind polygon, wall or boundary; vertices [[x, y], ...] in metres), checked
+    /// before anything starts. Every decision plans among them. Not with --scan.
+    #[arg(long, value_name = "FILE")]
+    pub map: Option<PathBuf>,
+    /// See the walls through a laser scan (--scan-topic): each decision plans among the walls
+    /// the latest scan shows (people's returns dropped); no fresh, well-formed scan: a zero
+    /// command. Not with --map.
+    #[arg(long)]
+    pub scan: bool,
+    /// With --scan: the sensor's place in the robot's base frame, x ahead, metres.
+    #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
+    pub scan_x_m: f64,
+    /// With --scan: the sensor's place in the robot's base frame, y to the left, metres.
+    #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
+    pub scan_y_m: f64,
+    /// With --scan: the sensor's yaw in the robot's base frame, counter-clockwise.
+    #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
+    pub scan_yaw_rad: f64,
+    /// With --scan: consecutive returns at most this far apart are one wall.
+    #[arg(long, default_value_t = serve::scan::DEFAULT_MAX_GAP_M, allow_negative_numbers = true)]
+    pub scan_max_gap_m: f64,
+    /// With --scan: returns within a tracked person's radius plus this are the person's.
+    #[arg(long, default_value_t = serve::scan::DEFAULT_PEOPLE_MARGIN_M, allow_negative_numbers = true)]
+    pub scan_people_margin_m: f64,
+    /// With --scan: a scan with a larger fraction of NaN ranges is refused (a zero command).
+    #[arg(long, default_value_t = sim::scan::DEFAULT_MAX_NAN_FRACTION, allow_negative_numbers = true)]
+    pub scan_max_nan_fraction: f64,
     #[command(flatten)]
     pub ros: RosArgs,
 }
 
+/// The map of `--map FILE`, every problem named with the file, line and obstacle.
+fn read_map(path: &std::path::Path) -> anyhow::Result<sim::map::StaticMap> {
+    let text = std::fs::read_to_string(path)
+        .with_context(|| format!("--map {}: cannot read it", path.display()))?;
+    sim::scene_map::parse_toml_map(&text)
+        .map_err(|e| anyhow::anyhow!("--map {}: {e}", path.display()))
+}
+
 pub fn run(a: ServeArgs) -> anyhow::Result<()> {
+    // The map first: a bad file is refused before anything is opened or loaded.
+    let map = a.map.as_deref().map(read_map).transpose()?;
+    let scan = a.scan.then_some(serve::scan::ScanOptions {
+        x_m: a.scan_x_m,
+        y_m: a.scan_y_m,
+        yaw_rad: a.scan_yaw_rad,
+        max_gap_m: a.scan_max_gap_m,
+        people_margin_m: a.scan_people_margin_m,
+        max_nan_fraction: a.scan_max_nan_fraction,
+    });
     let opts = serve::ServeOptions {
+        map,
+        scan,
         style: a.ros.style(),
         topics: a.ros.topics(),
         zenoh: a.ros.zenoh(),

@@ -21,14 +21,22 @@
 //! - undecodable messages are counted per topic and the last input kept (a stop follows only
 //!   when the kept input turns stale); a refused one drops the input it would have replaced
 //!   and stops the robot at once, saying why;
-//! - speed and turn-rate limits applied to the policy's command.
+//! - speed and turn-rate limits applied to the policy's command;
+//! - with a laser scan (`fsrl serve --scan`), the scan is an input like odometry: none yet,
+//!   stale, stamped from another clock or out of step with the odometry stops the robot as for
+//!   odometry; a scan the checks refuse (angles, one range per beam, more than the allowed
+//!   fraction NaN: [`crate::scan::of_msg`]) is counted and stops the robot at once, rather than
+//!   letting it drive blind on an older scan; each decision plans among the walls of the latest
+//!   scan ([`crate::scan::walls`]), built within the decision's budget.
 
+use std::sync::Arc;
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
 use sim::Vec2;
 
 use crate::msg::{self, Odometry, PoseStamped, Time};
 use crate::people::{self, PeopleFormat, PeopleObs};
+use crate::scan::{ScanOptions, ScanUse};
 use crate::served::{Command, Decision, Limits, Observation, RobotObs, ServedPolicy};
 
 /// Why the command is a stop.
@@ -86,6 +94,15 @@ pub enum StopReason {
     PolicyFailed(String),
     ModelNotLoaded(String),
     Shutdown,
+    /// `--scan`: no scan received yet.
+    NoScan,
+    /// `--scan`: the scan is stale.
+    StaleScan {
+        age_s: f64,
+    },
+    /// `--scan`: the last scan was refused (malformed: angles, length, NaN ranges) or gave no
+    /// walls.
+    ScanRefused(String),
 }
 
 /// A [`StopReason`]'s variant and topic: see [`StopReason::kind`].
@@ -157,6 +174,14 @@ impl std::fmt::Display for StopReason {
             StopReason::PolicyFailed(e) => write!(f, "the policy failed: {e}"),
             StopReason::ModelNotLoaded(e) => write!(f, "the model did not load: {e}"),
             StopReason::Shutdown => write!(f, "shutting down"),
+            StopReason::NoScan => write!(f, "no laser scan received yet"),
+            StopReason::StaleScan { age_s } => {
+                write!(f, "the laser scan is stale (last {age_s:.2} s ago)")
+            }
+            StopReason::ScanRefused(e) => write!(
+                f,
+                "scan refused, not driving blind: {e}"
+            ),
         }
     }
 }
@@ -245,6 +270,11 @@ pub struct Counters {
     pub refused_odometry: u64,
     /// People messages refused for their stamp or their count.
     pub refused_people: u64,
+    /// Scans accepted (`--scan`).
+    pub scans: u64,
+    pub undecodable_scans: u64,
+    /// Scans refused: malformed (angles, length, NaN ranges) or stamped from another clock.
+    pub refused_scans: u64,
     pub decisions: u64,
     pub stops: u64,
     /// Decisions dropped for taking longer than the budget (counted in `stops` too).
@@ -253,7 +283,10 @@ pub struct Counters {
 
 impl Counters {
     pub fn undecodable(&self) -> u64 {
-        self.undecodable_odometry + self.undecodable_people + self.undecodable_goals
+        self.undecodable_odometry
+            + self.undecodable_people
+            + self.undecodable_goals
+            + self.undecodable_scans
     }
 }
 
@@ -334,7 +367,19 @@ pub struct Controller {
     refusal: Option<StopReason>,
     odom_refusal: Option<StopReason>,
     people_refusal: Option<StopReason>,
+    /// `--scan`: how the scan is read, the latest accepted one, why the last was refused.
+    scan_opts: Option<ScanOptions>,
+    scan: Option<ScanIn>,
+    scan_refusal: Option<StopReason>,
+    last_scan_use: ScanUse,
     counters: Counters,
+}
+
+#[derive(Debug, Clone)]
+struct ScanIn {
+    stamp: Time,
+    scan: sim::scan::LaserScan,
+    fresh: Fresh,
 }
 
 /// The robot's world velocity from odometry: the twist is in the body frame (ROS' convention,
@@ -361,7 +406,63 @@ impl Controller {
             refusal: None,
             odom_refusal: None,
             people_refusal: None,
+            scan_opts: None,
+            scan: None,
+            scan_refusal: None,
+            last_scan_use: ScanUse::default(),
             counters: Counters::default(),
+        }
+    }
+
+    /// Drives on a laser scan read with `opts`: every decision needs a fresh scan and plans
+    /// among its walls.
+    pub fn with_scan(mut self, opts: ScanOptions) -> Self {
+        self.scan_opts = Some(opts);
+        self
+    }
+
+    /// What the last scan used gave (points kept, points of people, walls).
+    pub fn last_scan_use(&self) -> ScanUse {
+        self.last_scan_use
+    }
+
+    /// A laser scan arrived (ignored without `--scan`).
+    pub fn on_scan(&mut self, bytes: &[u8], arrival: Arrival) -> Intake {
+        let Some(opts) = self.scan_opts else {
+            return Intake::Accepted;
+        };
+        let m: msg::LaserScan = match msg::decode(bytes) {
+            Ok(m) => m,
+            Err(e) => {
+                self.counters.undecodable_scans += 1;
+                return Intake::Undecodable(e.to_string());
+            }
+        };
+        let checked = crate::scan::of_msg(&m, opts.max_nan_fraction)
+            .map_err(|e| StopReason::ScanRefused(e.to_string()))
+            .and_then(
+                |s| match self.check_stamp("scan", m.header.stamp, arrival, false) {
+                    Some(reason) => Err(reason),
+                    None => Ok(s),
+                },
+            );
+        match checked {
+            Ok(scan) => {
+                self.counters.scans += 1;
+                self.scan_refusal = None;
+                self.scan = Some(ScanIn {
+                    stamp: m.header.stamp,
+                    scan,
+                    fresh: self.fresh(m.header.stamp, arrival),
+                });
+                Intake::Accepted
+            }
+            Err(reason) => {
+                self.counters.refused_scans += 1;
+                self.scan = None;
+                self.scan_refusal = Some(reason.clone());
+                Intake::Refused(reason)
+            }
         }
     }
 
@@ -562,10 +663,16 @@ impl Controller {
     /// Whether a decision for the latest odometry can be made now in lockstep: people of the
     /// same stamp are in.
     pub fn synced(&self) -> bool {
-        match (&self.odom, &self.people) {
-            (Some(o), Some((p, _))) => o.stamp == p.header.stamp,
+        let scan_in = match (&self.scan_opts, &self.scan, &self.odom) {
+            (None, _, _) => true,
+            (Some(_), Some(s), Some(o)) => s.stamp == o.stamp,
             _ => false,
-        }
+        };
+        scan_in
+            && match (&self.odom, &self.people) {
+                (Some(o), Some((p, _))) => o.stamp == p.header.stamp,
+                _ => false,
+            }
     }
 
     /// The first instant at which an input held now turns stale (the loop wakes then, between
@@ -573,7 +680,8 @@ impl Controller {
     pub fn stale_at(&self) -> Option<Instant> {
         let odom = self.odom.as_ref().map(|o| o.fresh.expires);
         let people = self.people.as_ref().map(|(_, f)| f.expires);
-        [odom, people].into_iter().flatten().min()
+        let scan = self.scan.as_ref().map(|s| s.fresh.expires);
+        [odom, people, scan].into_iter().flatten().min()
     }
 
     /// Lockstep: the people's stamp minus the odometry's, when both are held.
@@ -629,6 +737,23 @@ impl Controller {
                 });
             }
         }
+        if self.scan_opts.is_some() {
+            let Some(scan) = &self.scan else {
+                return Err(self.scan_refusal.clone().unwrap_or(StopReason::NoScan));
+            };
+            if now >= scan.fresh.expires {
+                return Err(StopReason::StaleScan {
+                    age_s: scan.fresh.age_s(now),
+                });
+            }
+            let offset_s = scan.stamp.as_secs_f64() - odom_s;
+            if offset_s.abs() > self.safety.stale_after.as_secs_f64() + tolerance_s {
+                return Err(StopReason::ClocksDisagree {
+                    topic: "scan",
+                    offset_s,
+                });
+            }
+        }
         Ok(Observation {
             robot: o.robot,
             goal: g.position,
@@ -662,6 +787,23 @@ impl Controller {
         }
         obs.steps = self.steps(policy.period_s()).min(policy.step_limit());
         let started = Instant::now();
+        if let (Some(opts), Some(scan)) = (&self.scan_opts, &self.scan) {
+            // The scan was checked on arrival: what can fail here is building RVO2's
+            // obstacles, which a checked scan's walls always satisfy.
+            match crate::scan::walls(
+                &scan.scan,
+                &obs.robot,
+                &obs.humans,
+                policy.sim_config(),
+                opts,
+            ) {
+                Ok((w, used)) => {
+                    self.last_scan_use = used;
+                    policy.set_walls(Some(Arc::new(w)));
+                }
+                Err(e) => return Output::stop(StopReason::ScanRefused(e.to_string())),
+            }
+        }
         let decided = policy.decide(&obs);
         let took = started.elapsed();
         match decided {

@@ -6,6 +6,8 @@
 //!   (type names and hashes per distro, the 33-byte attachment, liveliness tokens);
 //! - [`people`]: tracked people from `people_msgs/People`, `spencer_tracking_msgs/TrackedPersons`
 //!   or `pedsim_msgs/AgentStates`;
+//! - [`scan`]: walls from a `sensor_msgs/LaserScan` (`fsrl serve --scan`), the same way a map's
+//!   are used (`fsrl serve --map`);
 //! - [`served`]: [`served::ServedPolicy`], a model file's policy deciding from an observed state
 //!   through the evaluator's own lookahead (same state, same action as `fsrl eval`);
 //! - [`control`]: the loop's logic without IO: staleness, goal and frame checks, stamps against
@@ -30,6 +32,7 @@ pub mod node;
 pub mod people;
 pub mod queries;
 pub mod ros2;
+pub mod scan;
 pub mod served;
 pub mod standin;
 

@@ -2,7 +2,8 @@
 //! CDR form as it travels in ROS 2 (a 4-byte encapsulation header, then plain CDR; little-endian
 //! written, both byte orders read) through `cdr-encoding`.
 //!
-//! Standard: `nav_msgs/msg/Odometry`, `geometry_msgs/msg/PoseStamped`, `geometry_msgs/msg/Twist`.
+//! Standard: `nav_msgs/msg/Odometry`, `geometry_msgs/msg/PoseStamped`, `geometry_msgs/msg/Twist`,
+//! `sensor_msgs/msg/LaserScan`.
 //! People: `people_msgs/msg/People` (wg-perception/people, ROS 2 branch),
 //! `spencer_tracking_msgs/msg/TrackedPersons` and `pedsim_msgs/msg/AgentStates` (srl-freiburg
 //! pedsim_ros; forks that add fields do not decode). The definitions are in
@@ -346,6 +347,23 @@ pub struct AgentStates {
     pub agent_states: Vec<AgentState>,
 }
 
+/// `sensor_msgs/msg/LaserScan`: beam `i` at `angle_min + i·angle_increment` in the frame of
+/// `header.frame_id` (the robot's base frame for `fsrl serve --scan`), ranges in metres (REP
+/// 117: `+inf` no return, `-inf` too near, NaN an erroneous reading).
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+pub struct LaserScan {
+    pub header: Header,
+    pub angle_min: f32,
+    pub angle_max: f32,
+    pub angle_increment: f32,
+    pub time_increment: f32,
+    pub scan_time: f32,
+    pub range_min: f32,
+    pub range_max: f32,
+    pub ranges: Vec<f32>,
+    pub intensities: Vec<f32>,
+}
+
 macro_rules! ros_msg {
     ($t:ty, $name:literal, $hash:literal) => {
         impl RosMsg for $t {
@@ -379,6 +397,11 @@ ros_msg!(
     TrackedPersons,
     "spencer_tracking_msgs/msg/TrackedPersons",
     "RIHS01_ff1e8664006cb714514f28e537ddf9b82d898b47909897eed6f5c172deb9378b"
+);
+ros_msg!(
+    LaserScan,
+    "sensor_msgs/msg/LaserScan",
+    "RIHS01_64c191398013af96509d518dac71d5164f9382553fce5c1f8cca5be7924bd828"
 );
 ros_msg!(
     AgentStates,

@@ -36,7 +36,8 @@ use crate::control::{
     DEFAULT_STALE_PERIODS,
 };
 use crate::msg::{
-    self, AgentStates, Odometry, People, PoseStamped, RosMsg, TrackedPersons, Twist, Vector3,
+    self, AgentStates, LaserScan, Odometry, People, PoseStamped, RosMsg, TrackedPersons, Twist,
+    Vector3,
 };
 use crate::people::PeopleFormat;
 use crate::queries::Queries;
@@ -51,6 +52,8 @@ pub struct Topics {
     pub goal: String,
     pub people: String,
     pub cmd_vel: String,
+    /// The laser scan (`sensor_msgs/LaserScan`), read with `--scan` only.
+    pub scan: String,
 }
 
 impl Default for Topics {
@@ -60,13 +63,20 @@ impl Default for Topics {
             goal: "goal_pose".into(),
             people: "people".into(),
             cmd_vel: "cmd_vel".into(),
+            scan: "scan".into(),
         }
     }
 }
 
 impl Topics {
     pub fn check(&self) -> Result<(), String> {
-        for t in [&self.odom, &self.goal, &self.people, &self.cmd_vel] {
+        for t in [
+            &self.odom,
+            &self.goal,
+            &self.people,
+            &self.cmd_vel,
+            &self.scan,
+        ] {
             check_topic(t)?;
         }
         Ok(())
@@ -117,6 +127,12 @@ pub struct ServeOptions {
     /// Threads of one decision's network batches (1: the loop's own; more pay with planning).
     pub threads: usize,
     pub zenoh: transport::ZenohConfig,
+    /// Static obstacles in the odometry frame (`--map`, parsed and checked before anything
+    /// starts): every decision plans among them.
+    pub map: Option<sim::map::StaticMap>,
+    /// Drive on a laser scan read so (`--scan`): every decision needs a fresh scan and plans
+    /// among its walls. Not with `map`.
+    pub scan: Option<crate::scan::ScanOptions>,
 }
 
 /// Most threads one decision may use.
@@ -153,6 +169,8 @@ impl ServeOptions {
             planning_breadth: None,
             threads: 1,
             zenoh: transport::ZenohConfig::default(),
+            map: None,
+            scan: None,
         }
     }
 
@@ -216,6 +234,15 @@ impl ServeOptions {
             }
         }
         problems.extend(self.limits.check());
+        if let Some(scan) = &self.scan {
+            if self.map.is_some() {
+                problems.push(
+                    "--map and --scan together: choose one (the walls of a map in the odometry frame, or the walls the scan shows)"
+                        .into(),
+                );
+            }
+            problems.extend(scan.check());
+        }
         if let Err(e) = self.topics.check() {
             problems.push(e);
         }
@@ -260,11 +287,15 @@ pub struct Inputs {
     pub odometry: Option<(Vec<u8>, Arrival)>,
     pub goal: Option<(Vec<u8>, Arrival)>,
     pub people: Option<(Vec<u8>, Arrival)>,
+    pub scan: Option<(Vec<u8>, Arrival)>,
 }
 
 impl Inputs {
     fn is_empty(&self) -> bool {
-        self.odometry.is_none() && self.goal.is_none() && self.people.is_none()
+        self.odometry.is_none()
+            && self.goal.is_none()
+            && self.people.is_none()
+            && self.scan.is_none()
     }
 }
 
@@ -286,6 +317,7 @@ enum Input {
     Odometry,
     Goal,
     People,
+    Scan,
 }
 
 /// The loop's inbox: a latest-value slot per input topic and the stop request. The
@@ -327,6 +359,7 @@ impl Inbox {
             Input::Odometry => &mut s.inputs.odometry,
             Input::Goal => &mut s.inputs.goal,
             Input::People => &mut s.inputs.people,
+            Input::Scan => &mut s.inputs.scan,
         };
         let old = slot.replace((bytes, arrival));
         if old.is_some() {
@@ -629,21 +662,36 @@ pub fn run(
     let mut node = RosNode::open(&opts.zenoh, opts.style.clone(), &opts.name)?;
     let mut cmd = node.command_publisher::<Twist>(&opts.topics.cmd_vel)?;
     let mut policy = load_policy(opts).or_else(|e| refuse_to_start(&mut cmd, e))?;
+    let map_walls = match &opts.map {
+        Some(map) => {
+            let w = policy
+                .walls_of(map.clone())
+                .map_err(ServeError::Model)
+                .or_else(|e| refuse_to_start(&mut cmd, e))?;
+            policy.set_walls(Some(Arc::clone(&w)));
+            Some(w)
+        }
+        None => None,
+    };
     let period = match opts.period_s {
         Some(s) => Duration::try_from_secs_f64(s)
             .map_err(|e| ServeError::Config(format!("--period-s {s}: {e}")))?,
         None => Duration::from_secs_f64(policy.period_s()),
     };
     let safety = safety_of(opts, period)?;
-    let worst = check_budget(&mut policy, &safety).or_else(|e| refuse_to_start(&mut cmd, e))?;
+    let worst = check_budget(&mut policy, &safety, opts.scan.as_ref())
+        .or_else(|e| refuse_to_start(&mut cmd, e))?;
 
-    let mut queries = Queries::start(
-        ServedPolicy::from_model(policy.model().clone(), opts.robot_visible)?
-            .with_threads(opts.threads),
-        opts.limits,
-        opts.max_people,
-    )
-    .map_err(ServeError::Config)?;
+    let mut asked_policy = ServedPolicy::from_model(policy.model().clone(), opts.robot_visible)?
+        .with_threads(opts.threads)
+        .with_walls(map_walls.clone());
+    if opts.scan.is_some() {
+        asked_policy = asked_policy.requiring_walls(
+            "this server sees walls through its laser scan (--scan), which a query does not carry: ask a server with --map, or none",
+        );
+    }
+    let mut queries =
+        Queries::start(asked_policy, opts.limits, opts.max_people).map_err(ServeError::Config)?;
     let subscribers = subscribe_inputs(&mut node, opts, &inbox)?;
     let asked = queries_session(&node, &opts.zenoh)?;
     let queryable = declare_queryable(&asked, &act_key, &queries)?;
@@ -658,15 +706,26 @@ pub fn run(
         decision_budget_s = safety.decision_budget.as_secs_f64(),
         slowest_decision_ms = worst.as_secs_f64() * 1e3,
         queryable = %act_key,
+        walls = match (&opts.map, &opts.scan) {
+            (Some(m), _) => format!("a map of {} shapes", m.shapes().len()),
+            (None, Some(_)) => format!("the laser scan on {}", opts.topics.scan),
+            (None, None) => "none (an open floor)".to_string(),
+        },
         "serving"
     );
+    if opts.map.is_some() && !policy.setting().env.is_walled() {
+        tracing::warn!(
+            setting = policy.setting().name(),
+            "this model was trained on an open floor: it sees the walls as points it never met in training"
+        );
+    }
     on_ready();
 
-    let mut driver = Driver::new(
-        Controller::new(safety, opts.people_format),
-        period,
-        opts.trigger == Trigger::Odometry,
-    );
+    let mut control = Controller::new(safety, opts.people_format);
+    if let Some(scan) = opts.scan {
+        control = control.with_scan(scan);
+    }
+    let mut driver = Driver::new(control, period, opts.trigger == Trigger::Odometry);
     driver.run(&inbox, &mut policy, &mut cmd);
 
     drop(queryable);
@@ -710,17 +769,47 @@ fn refuse_to_start<T>(cmd: &mut RosPublisher, e: ServeError) -> Result<T, ServeE
 /// would be dropped for a zero command, after holding the loop that long, so `fsrl serve`
 /// refuses to start, saying what it measured. The first decision also sets up the policy's
 /// world: a second one is timed when the first is over the budget by less than four times.
-fn check_budget(policy: &mut ServedPolicy, safety: &Safety) -> Result<Duration, ServeError> {
+fn check_budget(
+    policy: &mut ServedPolicy,
+    safety: &Safety,
+    scan: Option<&crate::scan::ScanOptions>,
+) -> Result<Duration, ServeError> {
     let crowd = Observation::crowd(safety.max_people);
     let budget = safety.decision_budget;
+    // With a scan, each decision first builds the walls of the scan: a full turn of a 10 m
+    // square room around the crowd, at the default lidar's 360 beams.
+    let room = scan.map(|opts| {
+        let map = sim::map::StaticMap::new(vec![sim::map::Shape::room(
+            sim::Vec2::new(-5.0, -3.0),
+            sim::Vec2::new(5.0, 7.0),
+        )])
+        .expect("a valid room");
+        let s = sim::scan::simulate(
+            &map,
+            &[],
+            crowd.robot.position,
+            crowd.robot.heading_rad,
+            &sim::scan::ScanGeometry::default_360(),
+        );
+        (s, *opts)
+    });
     let mut took = Duration::MAX;
     for _ in 0..2 {
         let started = Instant::now();
+        if let Some((s, opts)) = &room {
+            let (w, _) =
+                crate::scan::walls(s, &crowd.robot, &crowd.humans, policy.sim_config(), opts)
+                    .map_err(|e| ServeError::Config(e.to_string()))?;
+            policy.set_walls(Some(Arc::new(w)));
+        }
         policy.decide(&crowd)?;
         took = took.min(started.elapsed());
         if took <= budget || took > 4 * budget {
             break;
         }
+    }
+    if room.is_some() {
+        policy.set_walls(None);
     }
     if took <= budget {
         return Ok(took);
@@ -741,7 +830,7 @@ fn subscribe_inputs(
     node: &mut RosNode,
     opts: &ServeOptions,
     inbox: &Inbox,
-) -> Result<[Subscriber<()>; 3], ServeError> {
+) -> Result<Vec<Subscriber<()>>, ServeError> {
     let i = inbox.clone();
     let odom = node.subscribe::<Odometry>(&opts.topics.odom, move |b| {
         i.put(Input::Odometry, b, Arrival::now())
@@ -751,7 +840,14 @@ fn subscribe_inputs(
         i.put(Input::Goal, b, Arrival::now())
     })?;
     let people = subscribe_people(node, &opts.topics.people, opts.people_format, inbox.clone())?;
-    Ok([odom, goal, people])
+    let mut subs = vec![odom, goal, people];
+    if opts.scan.is_some() {
+        let i = inbox.clone();
+        subs.push(node.subscribe::<LaserScan>(&opts.topics.scan, move |b| {
+            i.put(Input::Scan, b, Arrival::now())
+        })?);
+    }
+    Ok(subs)
 }
 
 /// The session the queryable is declared on. Connected to a router (`connect` given), one of
@@ -810,6 +906,9 @@ fn summarise(control: &Controller, queries: &mut Queries, inbox: &Inbox) -> Summ
         refused_goals = c.refused_goals,
         refused_odometry = c.refused_odometry,
         refused_people = c.refused_people,
+        scans = c.scans,
+        undecodable_scans = c.undecodable_scans,
+        refused_scans = c.refused_scans,
         replaced_inputs = summary.replaced_inputs,
         queries = summary.queries,
         refused_queries = summary.refused_queries,
@@ -956,8 +1055,8 @@ impl Driver {
         }
     }
 
-    /// Every input that came, goal first, then people, then odometry (in lockstep a decision
-    /// follows once both are stamped alike).
+    /// Every input that came, goal first, then people, the scan, then odometry (in lockstep a
+    /// decision follows once all are stamped alike).
     fn on_inputs(&mut self, policy: &mut ServedPolicy, inputs: Inputs) -> Vec<Output> {
         let mut outs = Vec::new();
         if let Some((b, at)) = inputs.goal {
@@ -968,6 +1067,10 @@ impl Driver {
         if let Some((b, at)) = inputs.people {
             let r = self.control.on_people(&b, at);
             fresh |= self.intake(Input::People, r, at, &mut outs);
+        }
+        if let Some((b, at)) = inputs.scan {
+            let r = self.control.on_scan(&b, at);
+            fresh |= self.intake(Input::Scan, r, at, &mut outs);
         }
         if let Some((b, at)) = inputs.odometry {
             let r = self.control.on_odometry(&b, at);
@@ -996,11 +1099,18 @@ impl Driver {
                     Input::Odometry => ("odometry", c.undecodable_odometry),
                     Input::Goal => ("goal", c.undecodable_goals),
                     Input::People => ("people", c.undecodable_people),
+                    Input::Scan => ("scan", c.undecodable_scans),
                 };
                 log_count(topic, n, &e);
                 false
             }
             Intake::Refused(reason) => {
+                if let Input::Scan = input {
+                    let n = self.control.counters().refused_scans;
+                    if n.is_power_of_two() {
+                        tracing::warn!("refused scan (#{n}, the robot stops): {reason}");
+                    }
+                }
                 outs.push(Output::stop(reason));
                 false
             }

@@ -3,10 +3,14 @@
 //! state), so the same state gives the same action.
 
 use std::path::Path;
+use std::sync::Arc;
 
 use learner::model::Model;
 use policy::lookahead::Lookahead;
-use sim::{ActionSet, Env, HumanState, Kinematics, RobotState, Scenario, Setting, SimConfig, Vec2};
+use sim::map::StaticMap;
+use sim::{
+    ActionSet, Env, HumanState, Kinematics, RobotState, Scenario, Setting, SimConfig, Vec2, Walls,
+};
 
 use crate::people::PersonObs;
 
@@ -21,6 +25,8 @@ pub enum PolicyFailure {
     Observation(String),
     #[error("the policy failed: {0}")]
     Decide(String),
+    #[error("{0}")]
+    NoWalls(String),
 }
 
 /// Largest distance from the frame's origin accepted, for the robot, its goal, a person and a
@@ -220,6 +226,11 @@ pub struct ServedPolicy {
     env: Option<Env>,
     lookahead: Lookahead,
     actions: ActionSet,
+    /// The walls every decision's scenario holds (a map's, or the latest scan's).
+    walls: Option<Arc<Walls>>,
+    /// Why deciding without walls is refused (a server that sees walls through its scan, asked
+    /// through the queryable, which carries none).
+    walls_required: Option<String>,
 }
 
 impl ServedPolicy {
@@ -276,7 +287,43 @@ impl ServedPolicy {
             env: None,
             lookahead,
             actions,
+            walls: None,
+            walls_required: None,
         })
+    }
+
+    /// Walls from `map` (in the odometry frame) for this policy's world: RVO2's obstacles and
+    /// the people's roadmap for the config's people, as the walled settings build them.
+    pub fn walls_of(&self, map: StaticMap) -> Result<Arc<Walls>, PolicyFailure> {
+        Walls::new(map, &self.cfg, crate::scan::roadmap_radius_m(&self.cfg))
+            .map(Arc::new)
+            .map_err(|e| PolicyFailure::Observation(format!("the walls: {e}")))
+    }
+
+    /// Decides among `walls` from now on (None: an open floor): the scenario of every decision
+    /// holds them, so the networks see them and the lookahead counts touching one a collision,
+    /// exactly as `fsrl eval` among the same walls.
+    pub fn set_walls(&mut self, walls: Option<Arc<Walls>>) {
+        self.walls = walls;
+    }
+
+    /// [`ServedPolicy::set_walls`], by value.
+    pub fn with_walls(mut self, walls: Option<Arc<Walls>>) -> Self {
+        self.walls = walls;
+        self
+    }
+
+    /// The walls decisions are made among.
+    pub fn walls(&self) -> Option<&Arc<Walls>> {
+        self.walls.as_ref()
+    }
+
+    /// Refuses every decision without walls, saying `why` (a server driving on its scan asked
+    /// through the queryable, whose requests carry no scan: deciding wall-blind is worse than
+    /// refusing).
+    pub fn requiring_walls(mut self, why: impl Into<String>) -> Self {
+        self.walls_required = Some(why.into());
+        self
     }
 
     pub fn model(&self) -> &Model {
@@ -330,7 +377,7 @@ impl ServedPolicy {
                     standing: p.standing.unwrap_or(false),
                 })
                 .collect(),
-            walls: None,
+            walls: self.walls.clone(),
         }
     }
 
@@ -411,6 +458,9 @@ impl ServedPolicy {
             ));
         }
         check_bounds(obs).map_err(PolicyFailure::Observation)?;
+        if let (None, Some(why)) = (&self.walls, &self.walls_required) {
+            return Err(PolicyFailure::NoWalls(why.clone()));
+        }
         // The simulator keeps headings in [−π, π); wrapping one already there could change
         // its last bits.
         let h = obs.robot.heading_rad;
@@ -420,8 +470,9 @@ impl ServedPolicy {
         } else {
             sim::geom::wrap_angle(h)
         };
-        if obs.humans.is_empty() {
+        if obs.humans.is_empty() && self.walls.is_none() {
             // The network needs at least one person; with nobody around, head for the goal.
+            // Among walls the network sees the walls' points (and the empty person slots).
             let to_goal = obs.goal - obs.robot.position;
             let n = to_goal.norm();
             let v = if n > 0.0 {

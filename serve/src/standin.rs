@@ -3,8 +3,11 @@
 //! (in any of the three formats, [`people::encode`]: `people_msgs/People` with fsrl's tags
 //! (radius, goal, preferred speed, standing), spencer's or pedsim's messages with positions and
 //! velocities only) and the odometry (frame `odom`, twist in `base_link`), waits for the
-//! `cmd_vel` that answers them and executes it as the nearest action. Or it asks the queryable
-//! instead of using topics.
+//! `cmd_vel` that answers them and executes it as the nearest action. Among walls it also
+//! publishes, before the odometry, the laser scan the robot's sensor would read
+//! (`sensor_msgs/LaserScan`, [`sim::scan::simulate`] of the scene's walls and people from the
+//! robot's pose, [`sim::scan::ScanGeometry::default_360`], frame `base_link`), for `fsrl serve
+//! --scan`. Or it asks the queryable instead of using topics.
 //!
 //! Stamps are simulated time (`1000 s` + the steps so far + 1 s between episodes), so the
 //! served episode clock counts the simulator's steps.
@@ -17,8 +20,8 @@ use sim::{Env, Outcome, Setting, SimConfig};
 use zenoh::Wait;
 
 use crate::msg::{
-    self, AgentStates, Header, Odometry, People, Point, Pose, PoseStamped, Quaternion, Time,
-    TrackedPersons, Twist,
+    self, AgentStates, Header, LaserScan, Odometry, People, Point, Pose, PoseStamped, Quaternion,
+    Time, TrackedPersons, Twist,
 };
 use crate::node::{RosNode, RosPublisher, ServeError, Topics};
 use crate::people::{self, PeopleFormat, PersonObs};
@@ -97,6 +100,7 @@ struct Links {
     people: RosPublisher,
     people_format: PeopleFormat,
     goal: RosPublisher,
+    scan: RosPublisher,
     cmd: mpsc::Receiver<Vec<u8>>,
     _sub: zenoh::pubsub::Subscriber<()>,
 }
@@ -131,6 +135,32 @@ fn odometry_of(env: &Env, t_s: f64) -> Odometry {
         z: 0.0,
     };
     o
+}
+
+/// The laser scan the robot's sensor reads among the env's walls and people (None on an open
+/// floor), stamped `t_s` in the robot's frame `base_link`.
+pub fn scan_of(env: &Env, t_s: f64) -> Option<LaserScan> {
+    let walls = env.walls()?;
+    let r = env.robot();
+    let people: Vec<(sim::Vec2, f64)> = env
+        .humans()
+        .iter()
+        .map(|h| (h.position, h.radius_m))
+        .collect();
+    let s = sim::scan::simulate(
+        walls.map(),
+        &people,
+        r.position,
+        r.heading_rad,
+        &sim::scan::ScanGeometry::default_360(),
+    );
+    Some(crate::scan::to_msg(
+        &s,
+        Header {
+            stamp: Time::from_secs_f64(t_s),
+            frame_id: "base_link".into(),
+        },
+    ))
 }
 
 /// The people message of `format` for the env's humans (what a perfect tracker sees).
@@ -270,6 +300,7 @@ impl Links {
             PeopleFormat::Pedsim => node.publisher::<AgentStates>(&topics.people)?,
         };
         let goal = node.publisher::<PoseStamped>(&topics.goal)?;
+        let scan = node.publisher::<LaserScan>(&topics.scan)?;
         let (tx, cmd) = mpsc::channel();
         let sub = node.subscribe::<Twist>(&topics.cmd_vel, move |b| {
             let _ = tx.send(b);
@@ -283,6 +314,7 @@ impl Links {
             people,
             people_format,
             goal,
+            scan,
             cmd,
             _sub: sub,
         })
@@ -316,6 +348,9 @@ impl Links {
     ) -> Result<usize, ServeError> {
         while self.cmd.try_recv().is_ok() {}
         self.people.put_bytes(people_bytes)?;
+        if let Some(s) = scan_of(env, t) {
+            self.scan.put(&s)?;
+        }
         self.odom.put(&odometry_of(env, t))?;
         let bytes = self.cmd.recv_timeout(timeout).map_err(|_| {
             ServeError::Zenoh(format!(
@@ -441,6 +476,8 @@ fn play(
         };
         let want = match reference.as_deref_mut() {
             Some(p) => {
+                // The reference decides among the scene's own walls (what `--map` gives).
+                p.set_walls(env.walls().cloned());
                 let mut obs = Observation::of_env(env);
                 if let (Connected::Topics(l), Some(b)) = (&*link, &people_bytes) {
                     obs.humans = people::decode(l.people_format, b).map_err(config)?.people;

@@ -134,6 +134,19 @@ fn cases() -> Vec<Case> {
         tagnames: (0..tags).map(|i| format!("tag{i}")).collect(),
         tags: (0..tags).map(|i| "x".repeat(i)).collect(),
     };
+    v.push(case(LaserScan {
+        header: header(7, "base_scan"),
+        angle_min: -std::f32::consts::PI,
+        angle_max: std::f32::consts::PI - 0.5,
+        angle_increment: 0.5,
+        time_increment: 1e-4,
+        scan_time: 0.1,
+        range_min: 0.05,
+        range_max: 8.0,
+        ranges: (0..13).map(|i| 0.5 + i as f32 * 0.25).collect(),
+        intensities: vec![],
+    }));
+    v.push(case(LaserScan::default()));
     v.push(case(People {
         header: header(3, "odom"),
         people: vec![],
@@ -239,6 +252,7 @@ fn cdr_bytes_match_rosbags_both_ways_and_type_hashes_agree() {
         (People::NAME, People::JAZZY_HASH),
         (TrackedPersons::NAME, TrackedPersons::JAZZY_HASH),
         (AgentStates::NAME, AgentStates::JAZZY_HASH),
+        (LaserScan::NAME, LaserScan::JAZZY_HASH),
     ] {
         assert_eq!(hashes[name].as_str(), Some(ours), "{name}");
     }
