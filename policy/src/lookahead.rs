@@ -54,6 +54,8 @@ pub struct Lookahead {
     terminal_previews: bool,
     /// Per candidate of the last decision: its step ends the episode.
     terminal: Vec<bool>,
+    /// Per candidate of the last decision: its step touches a wall.
+    walled: Vec<bool>,
     /// Depth-2 planning over this many best first steps (0: the paper's one-step lookahead).
     planning_top_k: usize,
     /// The second steps planning tries after each first step: this many of the decision's best
@@ -83,6 +85,7 @@ struct PlanBuffers {
     values: Vec<f32>,
     rewards: Vec<f64>,
     terminal: Vec<bool>,
+    walled: Vec<bool>,
     scratch: Scratch,
 }
 
@@ -110,6 +113,7 @@ impl Lookahead {
             discount_last: 0.0,
             terminal_previews: false,
             terminal: Vec::new(),
+            walled: Vec::new(),
             planning_top_k: 0,
             planning_breadth: 0,
             robot_next: Vec::new(),
@@ -215,6 +219,7 @@ impl Lookahead {
         self.batch.clear();
         self.rewards.clear();
         self.terminal.clear();
+        self.walled.clear();
         self.robot_next.clear();
         for a in 0..n_actions {
             let eval = match self.model {
@@ -237,6 +242,7 @@ impl Lookahead {
             };
             self.rewards.push(eval.reward.total);
             self.terminal.push(eval.outcome.is_terminal());
+            self.walled.push(eval.wall_contact);
             if self.planning_top_k > 0 {
                 self.robot_next.push(eval.robot_next);
             }
@@ -248,6 +254,7 @@ impl Lookahead {
                 &mut self.batch,
             );
         }
+        shield_walls(&mut self.rewards, &self.walled);
         let states = StateBatch::new(&self.batch, n_actions, self.obs.len())?;
         self.values.resize(n_actions, 0.0);
         net_values(
@@ -345,6 +352,7 @@ impl Lookahead {
         plan.batch.clear();
         plan.rewards.clear();
         plan.terminal.clear();
+        plan.walled.clear();
         let mut rows = 0;
         for &a in &plan.chosen {
             if self.terminal[a] {
@@ -367,6 +375,7 @@ impl Lookahead {
                 );
                 plan.rewards.push(eval.reward.total);
                 plan.terminal.push(eval.outcome.is_terminal());
+                plan.walled.push(eval.wall_contact);
                 featurize_into(
                     &eval.robot_next,
                     &plan.obs,
@@ -376,6 +385,8 @@ impl Lookahead {
                 );
                 rows += 1;
             }
+            let group = rows - plan.second.len()..rows;
+            shield_walls(&mut plan.rewards[group.clone()], &plan.walled[group]);
         }
         plan.values.resize(rows, 0.0);
         if rows > 0 {
@@ -417,6 +428,20 @@ impl Lookahead {
             return Err(PolicyError::NonFinite("planning values"));
         }
         Ok(best)
+    }
+}
+
+/// Walls are hard: while some candidate keeps clear of every wall, a candidate whose step
+/// touches one is never chosen (its reward becomes −∞; at depth two, among the second steps of
+/// one first step). Stopping never touches a wall, so among walls the robot's own choice never
+/// hits one. Without walls nothing is touched and nothing changes.
+fn shield_walls(rewards: &mut [f64], walled: &[bool]) {
+    if walled.iter().any(|&w| w) && walled.iter().any(|&w| !w) {
+        for (r, &w) in rewards.iter_mut().zip(walled) {
+            if w {
+                *r = f64::NEG_INFINITY;
+            }
+        }
     }
 }
 
@@ -493,6 +518,40 @@ mod tests {
             terminal_seen > 10 && running_seen > 100,
             "{terminal_seen} {running_seen}"
         );
+    }
+
+    /// Walls are hard (issue 53): a robot in the corridor driven against a wall by untrained
+    /// networks never chooses an action whose step touches it, at depth one and with planning.
+    #[test]
+    fn an_action_into_a_wall_is_never_chosen() {
+        let cfg = SimConfig::default();
+        let setting: Setting = "corridor".parse().unwrap();
+        let mut env = Env::new(cfg, setting, 3).unwrap();
+        let mut contacts_offered = 0;
+        for net_seed in 0..6u64 {
+            let net = ValueNet::new(NetConfig::sarl(), net_seed).unwrap();
+            for planning in [0, 4] {
+                let mut la = Lookahead::new(0.9, HumanModel::Orca, HumanOrder::AsGiven)
+                    .with_planning(planning);
+                for (x, heading) in [(0.62, 0.3), (-0.62, 2.8), (0.55, 0.0), (-0.6, 3.1)] {
+                    let mut scenario = sim::Scenario::generate(env.config(), setting, 3).unwrap();
+                    scenario.robot.position = Vec2::new(x, -3.0);
+                    scenario.robot.heading_rad = heading;
+                    env.reset_to_scenario(3, scenario);
+                    let n = env.action_set().len();
+                    contacts_offered += (0..n)
+                        .filter(|&a| env.preview(a).unwrap().wall_contact)
+                        .count();
+                    let d = la.decide(&mut env, &net).unwrap();
+                    assert!(
+                        !env.preview(d.action).unwrap().wall_contact,
+                        "net {net_seed} planning {planning} at x = {x}: action {} hits the wall",
+                        d.action
+                    );
+                }
+            }
+        }
+        assert!(contacts_offered > 100, "{contacts_offered}");
     }
 
     /// The depth-2 value of one state written out by hand: every first step `a`, every second
