@@ -307,6 +307,13 @@ impl FileConfig {
                 None
             }
         };
+        // A run among walls is scored on its own setting unless the file names others: the
+        // paper's six are another world for it (and 3,000 episodes per report for nothing).
+        if let Some(s) = setting.filter(|s| !s.is_paper()) {
+            if self.evaluator.settings == EvaluatorSection::default().settings {
+                self.evaluator.settings = vec![s.name().to_string()];
+            }
+        }
         problems.extend(self.train.problems());
         if let Err(e) = proto::RunId::new(self.run.id.as_str()) {
             problems.push(format!("run.id `{}`: {e}", self.run.id));
@@ -476,6 +483,21 @@ mod tests {
         let text = toml::to_string(&c).unwrap();
         let back: FileConfig = toml::from_str(&text).unwrap();
         assert_eq!(back, c);
+    }
+
+    /// A walled run's evaluator scores its own setting by default; a paper run's the six; a
+    /// list given in the file is kept.
+    #[test]
+    fn a_walled_run_is_evaluated_on_its_own_setting() {
+        let mut c = FileConfig::default();
+        c.run.setting = "corridor".into();
+        let r = c.clone().resolve(Vec::new()).unwrap();
+        assert_eq!(r.file.evaluator.settings, vec!["corridor".to_string()]);
+        let paper = FileConfig::default().resolve(Vec::new()).unwrap();
+        assert_eq!(paper.file.evaluator.settings.len(), 6);
+        c.evaluator.settings = vec!["env1-visible".into(), "corridor".into()];
+        let r = c.resolve(Vec::new()).unwrap();
+        assert_eq!(r.file.evaluator.settings, vec!["env1-visible", "corridor"]);
     }
 
     /// `--method fsrl-plan` writes its planning into the resolved `[train]` (and so into the
