@@ -155,6 +155,13 @@ pub struct ServeArgs {
     /// With --scan: consecutive returns at most this far apart are one wall.
     #[arg(long, default_value_t = serve::scan::DEFAULT_MAX_GAP_M, allow_negative_numbers = true)]
     pub scan_max_gap_m: f64,
+    /// With --scan: each wall the scan shows is simplified within this many metres.
+    #[arg(long, default_value_t = serve::scan::DEFAULT_TOLERANCE_M, allow_negative_numbers = true)]
+    pub scan_tolerance_m: f64,
+    /// With --scan: a wall seen on both sides of a person, its returns at most this far apart,
+    /// runs on straight behind the person (0: never).
+    #[arg(long, default_value_t = serve::scan::DEFAULT_SHADOW_GAP_M, allow_negative_numbers = true)]
+    pub scan_shadow_gap_m: f64,
     /// With --scan: returns within a tracked person's radius plus this are the person's.
     #[arg(long, default_value_t = serve::scan::DEFAULT_PEOPLE_MARGIN_M, allow_negative_numbers = true)]
     pub scan_people_margin_m: f64,
@@ -181,6 +188,8 @@ pub fn run(a: ServeArgs) -> anyhow::Result<()> {
         y_m: a.scan_y_m,
         yaw_rad: a.scan_yaw_rad,
         max_gap_m: a.scan_max_gap_m,
+        tolerance_m: a.scan_tolerance_m,
+        shadow_gap_m: a.scan_shadow_gap_m,
         people_margin_m: a.scan_people_margin_m,
         max_nan_fraction: a.scan_max_nan_fraction,
     });

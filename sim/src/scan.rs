@@ -415,6 +415,16 @@ pub const SCAN_POLE_HALF_M: f64 = 0.005;
 /// polylines that do not, so the map is always valid ([`StaticMap::new`]); shapes may overlap.
 /// A `max_gap_m` that is not a positive number joins nothing.
 pub fn scan_map(points: &[Vec2], max_gap_m: f64) -> StaticMap {
+    scan_map_within(points, max_gap_m, 0.0)
+}
+
+/// [`scan_map`] with each polyline simplified within `tolerance_m` (Douglas–Peucker: a vertex
+/// is kept where leaving it out would move the wall by more than the tolerance; the ends are
+/// always kept): a 360-beam scan of a corridor's straight wall is one segment, not hundreds,
+/// and every later use of the map (RVO2's obstacles, the sensor's sectors, contact) costs by
+/// segment. Every point of the scan stays within `tolerance_m` of the map. A tolerance that is
+/// not a positive number keeps every vertex.
+pub fn scan_map_within(points: &[Vec2], max_gap_m: f64, tolerance_m: f64) -> StaticMap {
     let mut chains: Vec<Vec<Vec2>> = Vec::new();
     let mut last: Option<Vec2> = None;
     for &p in points {
@@ -429,6 +439,11 @@ pub fn scan_map(points: &[Vec2], max_gap_m: f64) -> StaticMap {
             _ => chains.push(vec![p]),
         }
         last = Some(p);
+    }
+    if tolerance_m > 0.0 {
+        for c in &mut chains {
+            *c = simplified(c, tolerance_m);
+        }
     }
     let pole = Vec2::new(SCAN_POLE_HALF_M, 0.0);
     let mut shapes: Vec<Shape> = chains
@@ -472,6 +487,40 @@ pub fn scan_map(points: &[Vec2], max_gap_m: f64) -> StaticMap {
         }
         shapes = next;
     }
+}
+
+/// Douglas–Peucker: the vertices of `chain` that keep every vertex within `tolerance_m` of
+/// the polyline, the ends always.
+fn simplified(chain: &[Vec2], tolerance_m: f64) -> Vec<Vec2> {
+    let n = chain.len();
+    if n <= 2 {
+        return chain.to_vec();
+    }
+    let mut keep = vec![false; n];
+    keep[0] = true;
+    keep[n - 1] = true;
+    let mut stack = vec![(0, n - 1)];
+    while let Some((a, b)) = stack.pop() {
+        let seg = Segment {
+            a: chain[a],
+            b: chain[b],
+        };
+        let far = (a + 1..b)
+            .map(|i| (seg.distance_m(chain[i]), i))
+            .max_by(|x, y| x.0.total_cmp(&y.0));
+        if let Some((d, i)) = far {
+            if d > tolerance_m {
+                keep[i] = true;
+                stack.push((a, i));
+                stack.push((i, b));
+            }
+        }
+    }
+    chain
+        .iter()
+        .zip(keep)
+        .filter_map(|(p, k)| k.then_some(*p))
+        .collect()
 }
 
 #[cfg(test)]
@@ -881,5 +930,48 @@ mod tests {
         for w in back.windows(2) {
             assert!(segs.contains(&(w[0], w[1])), "{:?} missing", w);
         }
+    }
+
+    #[test]
+    fn a_simplified_scan_map_keeps_every_point_within_the_tolerance() {
+        let truth = room_with_box();
+        let g = ScanGeometry::default_360();
+        let pose = v(-1.0, 0.5);
+        let scan = simulate(&truth, &[], pose, 0.0, &g);
+        let pts = points(&scan, pose, 0.0, DEFAULT_MAX_NAN_FRACTION)
+            .unwrap()
+            .points;
+        let full = scan_map(&pts, 0.3);
+        let slim = scan_map_within(&pts, 0.3, 0.02);
+        assert!(
+            slim.segments().len() * 10 < full.segments().len(),
+            "{} of {} segments",
+            slim.segments().len(),
+            full.segments().len()
+        );
+        for &p in &pts {
+            assert!(slim.distance_m(p) <= 0.02 + 1e-9, "{p:?}");
+        }
+        // Every vertex kept is a scan point, the ends of each polyline included.
+        for s in slim.shapes() {
+            for q in &s.vertices {
+                assert!(pts
+                    .iter()
+                    .any(|p| (p - q).norm() < 1e-12 || s.vertices.len() == 2));
+            }
+        }
+        // A straight run of points is one segment; a corner keeps its vertex.
+        let line: Vec<Vec2> = (0..50).map(|i| v(i as f64 * 0.05, 0.0)).collect();
+        assert_eq!(scan_map_within(&line, 0.1, 0.01).segments().len(), 1);
+        let corner: Vec<Vec2> = (0..20)
+            .map(|i| v(i as f64 * 0.05, 0.0))
+            .chain((1..20).map(|i| v(0.95, i as f64 * 0.05)))
+            .collect();
+        let m = scan_map_within(&corner, 0.1, 0.01);
+        assert_eq!(
+            m.shapes()[0].vertices,
+            vec![corner[0], corner[19], corner[38]]
+        );
+        assert_eq!(scan_map_within(&corner, 0.1, 0.0).segments().len(), 38);
     }
 }
