@@ -443,4 +443,51 @@ mod tests {
         assert!(blind.map().distance_m(person.position) < 0.31);
         assert!(w.map().distance_m(person.position) > 0.5);
     }
+
+    /// A person beside a wall: the wall runs on behind the person (one wall where a hole
+    /// would split it); a person ahead in the corridor shadows its far end, and no wall is put
+    /// across the corridor.
+    #[test]
+    fn a_wall_runs_on_behind_a_person_but_never_across_the_corridor() {
+        let cfg = SimConfig::default();
+        let truth = corridor();
+        let robot = RobotObs {
+            position: Vec2::new(0.0, -3.0),
+            velocity: Vec2::zeros(),
+            heading_rad: std::f64::consts::FRAC_PI_2,
+        };
+        let beside = PersonObs::tracked(Vec2::new(0.6, -2.0), Vec2::zeros());
+        let ahead = PersonObs::tracked(Vec2::new(0.0, 0.0), Vec2::zeros());
+        let people = [beside, ahead];
+        let discs: Vec<(Vec2, f64)> = people
+            .iter()
+            .map(|p| (p.position, cfg.humans.radius_m))
+            .collect();
+        let s = scan::simulate(
+            &truth,
+            &discs,
+            robot.position,
+            robot.heading_rad,
+            &ScanGeometry::default_360(),
+        );
+        let bridged = walls(&s, &robot, &people, &cfg, &ScanOptions::default())
+            .unwrap()
+            .0;
+        let holes = ScanOptions {
+            shadow_gap_m: 0.0,
+            ..ScanOptions::default()
+        };
+        let holed = walls(&s, &robot, &people, &cfg, &holes).unwrap().0;
+        // Behind the person beside it, the right wall (x = 1) is in the map only when bridged.
+        let behind = Vec2::new(1.0, -1.7);
+        assert!(holed.map().distance_m(behind) > 0.05);
+        assert!(bridged.map().distance_m(behind) < 0.03);
+        for s in bridged.map().segments() {
+            assert!(
+                (s.a.x - s.b.x).abs() < 0.3,
+                "{s:?} runs across the corridor"
+            );
+            assert!(truth.distance_m(s.a) < 0.03 && truth.distance_m(s.b) < 0.03);
+        }
+    }
 }
