@@ -144,7 +144,7 @@ fn a_malformed_or_missing_scan_stops_the_robot_and_is_counted() {
     // Goal, people and odometry but no scan: a stop, no scan yet.
     robot.until("a stop without a scan", || inputs(None), zero);
     serve.skip_log();
-    let mut phase = |what: &str, edit: fn(&mut Vec<f32>), reason: &str| {
+    let phase = |what: &str, edit: fn(&mut Vec<f32>), reason: &str| {
         robot.until(
             "driving with a good scan",
             || inputs(Some(scan(now_s(), |_| {}))),
