@@ -40,3 +40,37 @@ fn a_walled_setting_trains_end_to_end_through_the_distributed_path() {
         walls["wall_collisions"].as_u64().unwrap() + walls["people_collisions"].as_u64().unwrap();
     assert_eq!(split, setting["collisions"].as_u64().unwrap(), "{text}");
 }
+
+/// The single-process path trains a walled setting too (its learner sees the person slots and
+/// obstacle sectors: `SimConfig::entities`; it refused with "18 humans, this run has 10").
+#[test]
+fn a_walled_setting_trains_in_one_process() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("run");
+    let o = Command::new(env!("CARGO_BIN_EXE_fsrl"))
+        .args(["train", "--single-process", "--method", "sarl"])
+        .args([
+            "--setting",
+            "corridor",
+            "--il-episodes",
+            "4",
+            "--il-epochs",
+            "1",
+        ])
+        .args([
+            "--rl-episodes",
+            "3",
+            "--eval-episodes",
+            "3",
+            "--no-tensorboard",
+            "--out",
+        ])
+        .arg(&out)
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{stdout}\n{stderr}");
+    let report = std::fs::read_to_string(out.join("report.json")).unwrap();
+    assert!(report.contains("\"wall_collisions\""), "{report}");
+}

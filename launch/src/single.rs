@@ -101,7 +101,7 @@ fn start_or_resume(r: &SingleRun, latest: &Path) -> anyhow::Result<(LearnerCore,
         let core = LearnerCore::new(
             resolved.method,
             resolved.file.train.clone(),
-            resolved.file.sim.humans.count,
+            resolved.file.sim.entities(resolved.setting),
             resolved.file.sim.dt_s,
             resolved.file.run.seed,
         )?;
