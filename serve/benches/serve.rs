@@ -7,6 +7,8 @@
 //! the model's own, as ratios. The model is `models/fsrl-env1-invisible-s0.fsrlm` unless
 //! `FSRL_SERVE_MODEL` names another (e.g. a shipped `fsrl-plan` model, which plans by itself);
 //! its own decision is timed on one thread and on every core (`fsrl serve`'s default).
+//! Among walls: one decision of the shipped corridor model in room scenes with 10 people (issue
+//! 53's bound: 2 ms p99 on two threads).
 //! `cargo bench --workspace --bench serve`.
 
 use std::path::Path;
@@ -86,6 +88,48 @@ fn decisions(people: usize, planning: Option<(usize, usize)>, threads: usize) ->
     let (p50, p99) = (pct(&mut ms, 0.5), pct(&mut ms, 0.99));
     println!(
         "decision, {people:>2} people, planning top-k {k} breadth {m}, {threads} thread(s): p50 {p50:.3} ms, p99 {p99:.3} ms ({} states)",
+        ms.len()
+    );
+    (p50, p99)
+}
+
+/// One decision among walls (issue 53): the shipped corridor model deciding in `room-visible`
+/// scenes with 10 people (the room's people count pinned to 10), the room's furniture and
+/// bounding wall as the served robot's walls; p50 and p99 (ms) on `threads` threads.
+fn walled_decisions(threads: usize) -> (f64, f64) {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/fsrl-corridor-s0.fsrlm");
+    let (model, _) = learner::model::load_policy(&path).unwrap();
+    let mut cfg = model.method_sim();
+    cfg.walls.room.people_min = 10;
+    cfg.walls.room.people_max = 10;
+    let mut served = ServedPolicy::from_model(model, Some(true))
+        .unwrap()
+        .with_threads(threads);
+    let setting: Setting = "room-visible".parse().unwrap();
+    let mut env = Env::new(cfg, setting, 1000).unwrap();
+    let mut states = Vec::new();
+    let mut seed = 1000;
+    while states.len() < SAMPLES {
+        env.reset(seed).unwrap();
+        while !env.is_done() && states.len() < SAMPLES {
+            states.push((Observation::of_env(&env), env.walls().cloned()));
+            let a = env.orca_robot_action(0.0);
+            env.step(a).unwrap();
+        }
+        seed += 1;
+    }
+    let mut ms: Vec<f64> = states
+        .iter()
+        .map(|(o, walls)| {
+            served.set_walls(walls.clone());
+            let t = Instant::now();
+            served.decide(o).unwrap();
+            t.elapsed().as_secs_f64() * 1e3
+        })
+        .collect();
+    let (p50, p99) = (pct(&mut ms, 0.5), pct(&mut ms, 0.99));
+    println!(
+        "decision among walls, room-visible, 10 people, {threads} thread(s): p50 {p50:.3} ms, p99 {p99:.3} ms ({} states)",
         ms.len()
     );
     (p50, p99)
@@ -237,6 +281,9 @@ fn main() {
                 );
             }
         }
+    }
+    for t in &threads {
+        walled_decisions(*t);
     }
     for people in [5, 10] {
         input_to_command(people);
