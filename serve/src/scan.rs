@@ -238,7 +238,7 @@ pub fn walls(
         people_points,
         walls: map.shapes().len(),
     };
-    let w = Walls::new(map, cfg, roadmap_radius_m(cfg))?;
+    let w = Walls::new(map, cfg, cfg.roadmap_radius_m())?;
     Ok((w, used))
 }
 
@@ -308,12 +308,6 @@ fn drop_people_bridging(
     }
     *points = out;
     dropped
-}
-
-/// The radius the people's roadmap is built for: the config's people with ORCA's margin, as
-/// the walled settings build it.
-pub fn roadmap_radius_m(cfg: &SimConfig) -> f64 {
-    cfg.humans.radius_m + cfg.orca.radius_margin_m
 }
 
 #[cfg(test)]

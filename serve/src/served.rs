@@ -295,7 +295,7 @@ impl ServedPolicy {
     /// Walls from `map` (in the odometry frame) for this policy's world: RVO2's obstacles and
     /// the people's roadmap for the config's people, as the walled settings build them.
     pub fn walls_of(&self, map: StaticMap) -> Result<Arc<Walls>, PolicyFailure> {
-        Walls::new(map, &self.cfg, crate::scan::roadmap_radius_m(&self.cfg))
+        Walls::new(map, &self.cfg, self.cfg.roadmap_radius_m())
             .map(Arc::new)
             .map_err(|e| PolicyFailure::Observation(format!("the walls: {e}")))
     }

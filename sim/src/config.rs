@@ -892,7 +892,28 @@ impl SimConfig {
     /// The rows (entities) a value network sees per state in `setting`: `humans.count` in the
     /// paper's six; person slots plus obstacle sectors among walls.
     pub fn entities(&self, setting: Setting) -> usize {
-        crate::walled::entity_count(self, setting)
+        match self.people_slots(setting.env) {
+            Some(slots) => slots + self.walls.sensor.sectors,
+            None => self.humans.count,
+        }
+    }
+
+    /// The radius the people's roadmap among walls is built for: the configured people's ORCA
+    /// radius (`humans.radius_m` + `orca.radius_margin_m`).
+    pub fn roadmap_radius_m(&self) -> f64 {
+        self.humans.radius_m + self.orca.radius_margin_m
+    }
+
+    /// The most people a walled layout has (`Some` for the walled kinds): the networks see
+    /// this many person slots, empty ones as "no return" points (`Env::static_entities_into`).
+    pub fn people_slots(&self, env: EnvKind) -> Option<usize> {
+        match env {
+            EnvKind::Corridor => Some(self.walls.corridor.people),
+            EnvKind::Doorway => Some(self.walls.doorway.people),
+            EnvKind::Room => Some(self.walls.room.people_max),
+            EnvKind::Pillars => Some(self.walls.pillars.people),
+            EnvKind::Env1 | EnvKind::Env2 | EnvKind::Env3 => None,
+        }
     }
 
     /// The number of steps after which an episode times out.

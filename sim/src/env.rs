@@ -173,7 +173,7 @@ impl Env {
 
     /// The static entities the robot sees now, appended to `out`; nothing on an open floor.
     /// Among walls: first one "no return" point per person slot left empty (the room has 5–8
-    /// people and the networks a fixed number of entities per run: [`crate::walled::people_slots`]),
+    /// people and the networks a fixed number of entities per run: [`SimConfig::people_slots`]),
     /// then the sensor's obstacle points ([`crate::walled::obstacle_points`]). A "no return" point
     /// is what an empty sensor sector reads: at the sensor's range, here straight behind.
     pub fn static_entities_into(&self, out: &mut Vec<Vec2>) {
@@ -182,7 +182,7 @@ impl Env {
         };
         let sensor = &self.cfg.walls.sensor;
         let (pose, heading) = (self.robot.position, self.robot.heading_rad);
-        let slots = crate::walled::people_slots(&self.cfg, self.setting.env).unwrap_or(0);
+        let slots = self.cfg.people_slots(self.setting.env).unwrap_or(0);
         let behind = pose - crate::geom::heading(heading) * sensor.range_m;
         out.extend(std::iter::repeat_n(
             behind,

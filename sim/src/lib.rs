@@ -26,13 +26,16 @@ pub mod env;
 pub mod episode;
 pub mod geom;
 pub mod map;
+pub mod obstacles;
 pub mod orca;
 pub mod reward;
 pub mod robot;
 pub mod rvo;
+pub mod rvo_math;
 pub mod scan;
 pub mod scenario;
 pub mod scene_map;
+pub mod scene_problem;
 pub mod scenes;
 pub mod walled;
 
@@ -48,5 +51,6 @@ pub use reward::{
 };
 pub use robot::{Action, ActionSet, RobotState};
 pub use scenario::{HumanState, Scenario, ScenarioError};
-pub use scenes::{parse_scenes, SceneCase, SceneError, SceneFile, SceneFormat};
+pub use scene_map::parse_scenes;
+pub use scenes::{SceneCase, SceneError, SceneFile, SceneFormat};
 pub use walled::{Walls, WallsError};

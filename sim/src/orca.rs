@@ -17,9 +17,8 @@
 //! No allocation happens per call once the solver's scratch buffers have grown to the crowd size.
 
 use crate::geom::Vec2f;
-use crate::rvo::ObstacleSet;
-
-pub(crate) const RVO_EPSILON: f32 = 0.00001;
+use crate::obstacles::ObstacleSet;
+use crate::rvo_math::{abs_sq, det, div, dot, normalize, Line, RVO_EPSILON};
 
 /// Parameters shared by every agent of one simulation (RVO2's simulator defaults).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -52,39 +51,6 @@ pub struct OrcaAgent {
     /// Whether this agent takes its half of the avoidance. Others avoid a non-reciprocal agent
     /// with full responsibility.
     pub reciprocal: bool,
-}
-
-#[derive(Debug, Clone, Copy, Default)]
-pub(crate) struct Line {
-    pub(crate) point: Vec2f,
-    pub(crate) direction: Vec2f,
-}
-
-#[inline]
-pub(crate) fn det(a: Vec2f, b: Vec2f) -> f32 {
-    a.x * b.y - a.y * b.x
-}
-
-#[inline]
-pub(crate) fn dot(a: Vec2f, b: Vec2f) -> f32 {
-    a.x * b.x + a.y * b.y
-}
-
-#[inline]
-pub(crate) fn abs_sq(a: Vec2f) -> f32 {
-    dot(a, a)
-}
-
-/// RVO2's `Vector2::operator/`: multiply by the reciprocal.
-#[inline]
-pub(crate) fn div(a: Vec2f, s: f32) -> Vec2f {
-    let inv = 1.0f32 / s;
-    Vec2f::new(a.x * inv, a.y * inv)
-}
-
-#[inline]
-pub(crate) fn normalize(a: Vec2f) -> Vec2f {
-    div(a, abs_sq(a).sqrt())
 }
 
 /// Reusable ORCA solver: holds scratch buffers so that a call does not allocate.
@@ -155,9 +121,10 @@ impl Orca {
         self.lines.clear();
         if let Some(set) = obstacles {
             for &(_, edge) in &self.obstacle_neighbors {
+                let me = &agents[ego];
                 set.push_line(
                     edge,
-                    &agents[ego],
+                    (me.position, me.velocity, me.radius_m),
                     self.params.time_horizon_obst_s,
                     &mut self.lines,
                 );

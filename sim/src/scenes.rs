@@ -44,7 +44,7 @@ use crate::config::SimConfig;
 use crate::geom::Vec2;
 use crate::robot::RobotState;
 use crate::scenario::{initial_robot, HumanState, Scenario};
-pub use crate::scene_map::SceneProblem;
+pub use crate::scene_problem::SceneProblem;
 
 /// Which flavour a scene file is in.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -296,13 +296,9 @@ impl OpenCase {
     }
 }
 
-/// Parses a scene file's text, CSV or TOML (see the module docs); radii and preferred speeds
-/// not given in the file come from `cfg` (`robot.radius_m`, `robot.v_pref_mps`,
-/// `humans.radius_m`, `humans.v_pref_mps`).
-pub fn parse_scenes(text: &str, cfg: &SimConfig) -> Result<SceneFile, SceneError> {
-    if is_toml(text) {
-        return crate::scene_map::parse_toml_scenes(text, cfg);
-    }
+/// Parses a CSV scene file's text ([`crate::scene_map::parse_scenes`] reads CSV and TOML);
+/// radii and preferred speeds not given in the file come from `cfg`.
+pub fn parse_csv_scenes(text: &str, cfg: &SimConfig) -> Result<SceneFile, SceneError> {
     let mut lines = text
         .lines()
         .enumerate()
@@ -457,7 +453,7 @@ pub fn parse_scenes(text: &str, cfg: &SimConfig) -> Result<SceneFile, SceneError
 
 /// Whether the first line that is neither blank nor a comment is TOML (a table header or a
 /// key = value), not a CSV header.
-fn is_toml(text: &str) -> bool {
+pub(crate) fn is_toml(text: &str) -> bool {
     text.lines()
         .map(str::trim)
         .find(|l| !l.is_empty() && !l.starts_with('#'))
@@ -473,7 +469,7 @@ mod tests {
     #[test]
     fn crowdnav_format_takes_radii_and_speeds_from_the_config() {
         let cfg = SimConfig::default();
-        let f = parse_scenes(CROWDNAV, &cfg).unwrap();
+        let f = parse_csv_scenes(CROWDNAV, &cfg).unwrap();
         assert_eq!(f.format, SceneFormat::CrowdNav);
         assert_eq!(f.cases.len(), 2);
         assert_eq!((f.cases[0].case, f.cases[0].line), (0, 3));
@@ -495,7 +491,7 @@ mod tests {
                     ,0,robot,1,-4,1,4,0.25,\n\
                     false,0,0,-3,0,3,0,0.4,1.2\n\
                     true,0,1,0,0.5,9,9,,0\n";
-        let f = parse_scenes(text, &SimConfig::default()).unwrap();
+        let f = parse_csv_scenes(text, &SimConfig::default()).unwrap();
         assert_eq!(f.format, SceneFormat::Fsrl);
         let s = &f.cases[0].scenario;
         assert_eq!(s.robot.position, Vec2::new(1.0, -4.0));
@@ -559,20 +555,23 @@ mod tests {
             ),
         ];
         for (text, line, needle) in cases {
-            let err = parse_scenes(&text, &cfg).unwrap_err();
+            let err = parse_csv_scenes(&text, &cfg).unwrap_err();
             let msg = err.to_string();
             assert_eq!(err.line(), Some(line), "{msg}");
             assert!(msg.starts_with(&format!("line {line}: ")), "{msg}");
             assert!(msg.contains(needle), "{needle:?} not in {msg:?}");
         }
         let fsrl = "case,agent,px,py,gx,gy,radius_m,standing\n";
-        let err = parse_scenes(&format!("{fsrl}0,robot,0,-4,0,4,,true\n"), &cfg).unwrap_err();
+        let err = parse_csv_scenes(&format!("{fsrl}0,robot,0,-4,0,4,,true\n"), &cfg).unwrap_err();
         assert_eq!(err, SceneError::StandingRobot { line: 2 });
-        let err = parse_scenes(&format!("{fsrl}0,robot,0,-4,0,4,0,\n"), &cfg).unwrap_err();
+        let err = parse_csv_scenes(&format!("{fsrl}0,robot,0,-4,0,4,0,\n"), &cfg).unwrap_err();
         assert!(err.to_string().contains("radius must be > 0"), "{err}");
-        let err = parse_scenes(&format!("{fsrl}0,robot,0,-4,0,4,,maybe\n"), &cfg).unwrap_err();
+        let err = parse_csv_scenes(&format!("{fsrl}0,robot,0,-4,0,4,,maybe\n"), &cfg).unwrap_err();
         assert!(err.to_string().contains("true, false, 1 or 0"), "{err}");
-        assert_eq!(parse_scenes("# only\n\n", &cfg), Err(SceneError::NoHeader));
-        assert_eq!(parse_scenes(h, &cfg), Err(SceneError::NoCases));
+        assert_eq!(
+            parse_csv_scenes("# only\n\n", &cfg),
+            Err(SceneError::NoHeader)
+        );
+        assert_eq!(parse_csv_scenes(h, &cfg), Err(SceneError::NoCases));
     }
 }
