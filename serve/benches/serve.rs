@@ -44,7 +44,11 @@ fn states(people: usize) -> Vec<Env> {
     let (model, _) = learner::model::load_policy(&model_path()).unwrap();
     let mut cfg = model.method_sim();
     cfg.humans.count = people;
-    let setting: Setting = "env1-invisible".parse().unwrap();
+    orca_states(cfg, "env1-invisible".parse().unwrap())
+}
+
+/// [`SAMPLES`] states along ORCA episodes of `setting` from test seed 1000 on.
+fn orca_states(cfg: sim::SimConfig, setting: Setting) -> Vec<Env> {
     let mut env = Env::new(cfg, setting, 1000).unwrap();
     let mut out = Vec::new();
     let mut seed = 1000;
@@ -60,6 +64,34 @@ fn states(people: usize) -> Vec<Env> {
     out
 }
 
+/// One decision of `served` per state (after 20 to warm up), each among its state's walls:
+/// p50 and p99 in ms, printed after `label`.
+fn timed(served: &mut ServedPolicy, states: &[Env], label: &str) -> (f64, f64) {
+    let obs: Vec<_> = states
+        .iter()
+        .map(|e| (Observation::of_env(e), e.walls().cloned()))
+        .collect();
+    for (o, walls) in obs.iter().take(20) {
+        served.set_walls(walls.clone());
+        served.decide(o).unwrap();
+    }
+    let mut ms: Vec<f64> = obs
+        .iter()
+        .map(|(o, walls)| {
+            served.set_walls(walls.clone());
+            let t = Instant::now();
+            served.decide(o).unwrap();
+            t.elapsed().as_secs_f64() * 1e3
+        })
+        .collect();
+    let (p50, p99) = (pct(&mut ms, 0.5), pct(&mut ms, 0.99));
+    println!(
+        "{label}: p50 {p50:.3} ms, p99 {p99:.3} ms ({} states)",
+        ms.len()
+    );
+    (p50, p99)
+}
+
 /// One decision's p50 and p99 (ms) over the states with `people` humans; `planning`: decide
 /// with depth-2 planning over that many first steps (and that breadth of second steps)
 /// instead of the model's own setting.
@@ -73,24 +105,10 @@ fn decisions(people: usize, planning: Option<(usize, usize)>, threads: usize) ->
     let mut served = ServedPolicy::from_model(model, None)
         .unwrap()
         .with_threads(threads);
-    let obs: Vec<Observation> = states(people).iter().map(Observation::of_env).collect();
-    for o in obs.iter().take(20) {
-        served.decide(o).unwrap();
-    }
-    let mut ms: Vec<f64> = obs
-        .iter()
-        .map(|o| {
-            let t = Instant::now();
-            served.decide(o).unwrap();
-            t.elapsed().as_secs_f64() * 1e3
-        })
-        .collect();
-    let (p50, p99) = (pct(&mut ms, 0.5), pct(&mut ms, 0.99));
-    println!(
-        "decision, {people:>2} people, planning top-k {k} breadth {m}, {threads} thread(s): p50 {p50:.3} ms, p99 {p99:.3} ms ({} states)",
-        ms.len()
+    let label = format!(
+        "decision, {people:>2} people, planning top-k {k} breadth {m}, {threads} thread(s)"
     );
-    (p50, p99)
+    timed(&mut served, &states(people), &label)
 }
 
 /// One decision among walls (issue 53): the shipped corridor model deciding in `room-visible`
@@ -105,34 +123,9 @@ fn walled_decisions(threads: usize) -> (f64, f64) {
     let mut served = ServedPolicy::from_model(model, Some(true))
         .unwrap()
         .with_threads(threads);
-    let setting: Setting = "room-visible".parse().unwrap();
-    let mut env = Env::new(cfg, setting, 1000).unwrap();
-    let mut states = Vec::new();
-    let mut seed = 1000;
-    while states.len() < SAMPLES {
-        env.reset(seed).unwrap();
-        while !env.is_done() && states.len() < SAMPLES {
-            states.push((Observation::of_env(&env), env.walls().cloned()));
-            let a = env.orca_robot_action(0.0);
-            env.step(a).unwrap();
-        }
-        seed += 1;
-    }
-    let mut ms: Vec<f64> = states
-        .iter()
-        .map(|(o, walls)| {
-            served.set_walls(walls.clone());
-            let t = Instant::now();
-            served.decide(o).unwrap();
-            t.elapsed().as_secs_f64() * 1e3
-        })
-        .collect();
-    let (p50, p99) = (pct(&mut ms, 0.5), pct(&mut ms, 0.99));
-    println!(
-        "decision among walls, room-visible, 10 people, {threads} thread(s): p50 {p50:.3} ms, p99 {p99:.3} ms ({} states)",
-        ms.len()
-    );
-    (p50, p99)
+    let states = orca_states(cfg, "room-visible".parse().unwrap());
+    let label = format!("decision among walls, room-visible, 10 people, {threads} thread(s)");
+    timed(&mut served, &states, &label)
 }
 
 fn input_to_command(people: usize) {
