@@ -2,23 +2,45 @@
 //! two actors over iceoryx2, the evaluator process) and its report splits wall and people
 //! collisions and counts frozen robots.
 
+use std::path::Path;
 use std::process::Command;
+
+/// `fsrl train ARGS --no-tensorboard --out OUT`, which must succeed: its stdout and stderr.
+fn train(args: &[&str], out: &Path) -> (String, String) {
+    let o = Command::new(env!("CARGO_BIN_EXE_fsrl"))
+        .arg("train")
+        .args(args)
+        .args(["--no-tensorboard", "--out"])
+        .arg(out)
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&o.stdout).into_owned();
+    let stderr = String::from_utf8_lossy(&o.stderr).into_owned();
+    assert!(o.status.success(), "{stdout}\n{stderr}");
+    (stdout, stderr)
+}
 
 #[test]
 fn a_walled_setting_trains_end_to_end_through_the_distributed_path() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("run");
-    let o = Command::new(env!("CARGO_BIN_EXE_fsrl"))
-        .args(["train", "--method", "fsrl", "--setting", "doorway"])
-        .args(["--il-episodes", "6", "--il-epochs", "1"])
-        .args(["--rl-episodes", "8", "--eval-episodes", "6"])
-        .args(["--no-tensorboard", "--out"])
-        .arg(&out)
-        .output()
-        .unwrap();
-    let stdout = String::from_utf8_lossy(&o.stdout);
-    let stderr = String::from_utf8_lossy(&o.stderr);
-    assert!(o.status.success(), "{stdout}\n{stderr}");
+    let (stdout, stderr) = train(
+        &[
+            "--method",
+            "fsrl",
+            "--setting",
+            "doorway",
+            "--il-episodes",
+            "6",
+            "--il-epochs",
+            "1",
+            "--rl-episodes",
+            "8",
+            "--eval-episodes",
+            "6",
+        ],
+        &out,
+    );
     assert!(
         stderr.contains("actor process") || stdout.contains("actor process"),
         "not the distributed path:\n{stdout}\n{stderr}"
@@ -47,30 +69,24 @@ fn a_walled_setting_trains_end_to_end_through_the_distributed_path() {
 fn a_walled_setting_trains_in_one_process() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("run");
-    let o = Command::new(env!("CARGO_BIN_EXE_fsrl"))
-        .args(["train", "--single-process", "--method", "sarl"])
-        .args([
+    train(
+        &[
+            "--single-process",
+            "--method",
+            "sarl",
             "--setting",
             "corridor",
             "--il-episodes",
             "4",
             "--il-epochs",
             "1",
-        ])
-        .args([
             "--rl-episodes",
             "3",
             "--eval-episodes",
             "3",
-            "--no-tensorboard",
-            "--out",
-        ])
-        .arg(&out)
-        .output()
-        .unwrap();
-    let stdout = String::from_utf8_lossy(&o.stdout);
-    let stderr = String::from_utf8_lossy(&o.stderr);
-    assert!(o.status.success(), "{stdout}\n{stderr}");
+        ],
+        &out,
+    );
     let report = std::fs::read_to_string(out.join("report.json")).unwrap();
     assert!(report.contains("\"wall_collisions\""), "{report}");
 }
