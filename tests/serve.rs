@@ -357,10 +357,7 @@ fn closed_loop_among_walls_with_a_map_matches_fsrl_eval_and_a_scan_drives_it() {
     assert!(serve.terminate().success());
     let stopped = serve.wait_log("stopped", Duration::from_secs(10));
     let count = |name: &str| -> u64 {
-        stopped
-            .split(&format!(" {name}="))
-            .nth(1)
-            .and_then(|v| v.split_whitespace().next()?.parse().ok())
+        serve_support::summary_field(&stopped, name)
             .unwrap_or_else(|| panic!("no {name} in {stopped}"))
     };
     // One scan and one decision per step (the stand-in's first probe aside), none refused.

@@ -144,12 +144,9 @@ fn first_after(
     None
 }
 
-/// The value of `name=` in a log line.
+/// The value of `name=` in a log line (0 when it is not there).
 fn field(line: &str, name: &str) -> u64 {
-    line.split(&format!(" {name}="))
-        .nth(1)
-        .and_then(|v| v.split_whitespace().next()?.parse().ok())
-        .unwrap_or(0)
+    serve_support::summary_field(line, name).unwrap_or(0)
 }
 
 #[test]

@@ -191,10 +191,7 @@ fn a_malformed_or_missing_scan_stops_the_robot_and_is_counted() {
     assert!(serve.terminate().success());
     let stopped = serve.wait_log("stopped", within);
     let count = |name: &str| -> u64 {
-        stopped
-            .split(&format!(" {name}="))
-            .nth(1)
-            .and_then(|v| v.split_whitespace().next()?.parse().ok())
+        serve_support::summary_field(&stopped, name)
             .unwrap_or_else(|| panic!("no {name} in {stopped}"))
     };
     assert!(count("refused_scans") >= 2, "{stopped}");

@@ -252,3 +252,10 @@ pub fn tcp_queues(port: u16) -> Vec<TcpQueues> {
         .filter(|q| q.local_port == port || q.remote_port == port)
         .collect()
 }
+
+/// The value of `name=` in a log line of the server (its exit summary's counts), if it is there.
+pub fn summary_field(line: &str, name: &str) -> Option<u64> {
+    line.split(&format!(" {name}="))
+        .nth(1)
+        .and_then(|v| v.split_whitespace().next()?.parse().ok())
+}
