@@ -383,8 +383,9 @@ struct ScanIn {
 }
 
 /// The robot's world velocity from odometry: the twist is in the body frame (ROS' convention,
-/// `child_frame_id`), rotated by the heading.
-fn robot_of(o: &Odometry) -> RobotObs {
+/// `child_frame_id`), rotated by the heading. (The stand-in's reference reads its own odometry
+/// back with it, so that it decides on the very pose `fsrl serve` sees.)
+pub(crate) fn robot_of(o: &Odometry) -> RobotObs {
     let heading = o.pose.pose.orientation.yaw();
     let (s, c) = heading.sin_cos();
     let t = &o.twist.twist.linear;

@@ -480,7 +480,11 @@ fn play(
                 p.set_walls(env.walls().cloned());
                 let mut obs = Observation::of_env(env);
                 if let (Connected::Topics(l), Some(b)) = (&*link, &people_bytes) {
+                    // What `fsrl serve` reads: the people's bytes and the odometry's round
+                    // trips (the quaternion, the body-frame twist), each a rounding away from
+                    // the simulator's state and enough to flip a near tie among walls.
                     obs.humans = people::decode(l.people_format, b).map_err(config)?.people;
+                    obs.robot = crate::control::robot_of(&odometry_of(env, t));
                 }
                 Some(p.decide(&obs)?.action)
             }

@@ -614,6 +614,16 @@ impl WallsConfig {
             "walls.roadmap.corner_offset_m",
             self.roadmap.corner_offset_m,
         );
+        c.non_negative("walls.roadmap.one_way_gap_m", self.roadmap.one_way_gap_m);
+        c.non_negative("walls.roadmap.door_zone_m", self.roadmap.door_zone_m);
+        c.non_negative(
+            "walls.roadmap.door_wait_back_m",
+            self.roadmap.door_wait_back_m,
+        );
+        c.non_negative(
+            "walls.roadmap.door_wait_aside_m",
+            self.roadmap.door_wait_aside_m,
+        );
     }
 }
 
@@ -731,12 +741,26 @@ impl Default for PillarsConfig {
 pub struct RoadmapConfig {
     /// How far off a corner its node sits (beyond the person's radius).
     pub corner_offset_m: f64,
+    /// A gap between the free ends of two walls narrower than this (and wide enough for one
+    /// person) is a one-way passage, a door: people take turns at it (`sim::walled::Gate`).
+    /// 0 turns the turn-taking off.
+    pub one_way_gap_m: f64,
+    /// How near a door an agent about to cross it takes part in the turns.
+    pub door_zone_m: f64,
+    /// Where one waits for one's turn: this far back from the door's line...
+    pub door_wait_back_m: f64,
+    /// ...and this far aside from its axis (so that the one coming through passes).
+    pub door_wait_aside_m: f64,
 }
 
 impl Default for RoadmapConfig {
     fn default() -> Self {
         Self {
             corner_offset_m: 0.15,
+            one_way_gap_m: 1.4,
+            door_zone_m: 2.0,
+            door_wait_back_m: 1.2,
+            door_wait_aside_m: 0.9,
         }
     }
 }

@@ -9,7 +9,7 @@ use crate::orca::{Orca, OrcaAgent, OrcaParams};
 use crate::reward::{evaluate_step_among, evaluate_velocity_step_among, Outcome, StepEval};
 use crate::robot::{ActionSet, RobotState};
 use crate::scenario::{HumanState, Scenario, ScenarioError};
-use crate::walled::{Route, Walls};
+use crate::walled::{Mover, Route, Walls};
 
 /// Why an environment could not be built or stepped.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -293,6 +293,36 @@ impl Env {
             max_speed_mps: self.robot.v_pref_mps as f32,
             reciprocal: true,
         });
+        if let Some(w) = self.walls.clone().filter(|w| !w.doors().is_empty()) {
+            self.take_turns_at_doors(&w);
+        }
+    }
+
+    /// People (and the ORCA robot) wait for their turn at a one-way door
+    /// ([`Walls::door_turn`]): a waiting agent's preferred velocity heads for its waiting spot.
+    /// People see the robot only when it is visible; the ORCA robot sees everyone.
+    fn take_turns_at_doors(&mut self, w: &Walls) {
+        let n = self.humans.len();
+        let movers: Vec<Mover> = self
+            .humans
+            .iter()
+            .map(|h| Mover {
+                position: h.position,
+                goal: h.goal,
+                moving: !h.standing,
+            })
+            .chain(std::iter::once(Mover {
+                position: self.robot.position,
+                goal: self.robot.goal,
+                moving: true,
+            }))
+            .collect();
+        let robot_seen = self.setting.robot_visible;
+        for (k, agent) in self.orca_agents.iter_mut().enumerate() {
+            if let Some(spot) = w.door_turn(k, &movers, |j| j < n || robot_seen || k == n) {
+                agent.pref_velocity = pref_velocity(movers[k].position, spot);
+            }
+        }
     }
 
     /// The velocity every human takes during the coming step: ORCA from the current state for

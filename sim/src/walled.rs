@@ -32,6 +32,76 @@ pub struct Walls {
     map: StaticMap,
     obstacles: ObstacleSet,
     roadmap: Roadmap,
+    doors: Vec<Gate>,
+    door_zone_m: f64,
+    /// Where one waits: back from a door's line, aside from its axis.
+    door_wait_m: (f64, f64),
+}
+
+/// A one-way passage: a gap between the free ends of two walls too narrow for two people to
+/// pass each other in it and wide enough for one (`walls.roadmap.one_way_gap_m`), such as the
+/// doorway's 1 m door. ORCA cannot solve two people meeting head-on in it (neither backs out:
+/// seen as a quarter of the doorway's episodes timing out with two people stuck in the door),
+/// so people take turns ([`Walls::door_turn`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Gate {
+    pub centre: Vec2,
+    /// Unit normal of the gap (the way through it).
+    pub normal: Vec2,
+    /// Unit vector along the gap.
+    pub along: Vec2,
+    pub width_m: f64,
+}
+
+impl Gate {
+    /// Which side of the gap `p` is on: +1 or −1 (the gap's line itself counts as +1).
+    fn side(&self, p: Vec2) -> f64 {
+        if (p - self.centre).dot(&self.normal) >= 0.0 {
+            1.0
+        } else {
+            -1.0
+        }
+    }
+
+    /// The gates of `map` for people of radius `radius_m`: every pair of free wall ends between
+    /// `2 × radius_m` and `narrowest_m` apart with nothing nearer the gap's middle than its ends.
+    fn find(map: &StaticMap, radius_m: f64, narrowest_m: f64) -> Vec<Gate> {
+        let ends: Vec<Vec2> = map
+            .shapes()
+            .iter()
+            .filter(|s| !s.kind.is_closed())
+            .flat_map(|s| [s.vertices[0], s.vertices[s.vertices.len() - 1]])
+            .collect();
+        let mut gates = Vec::new();
+        for (i, a) in ends.iter().enumerate() {
+            for b in &ends[i + 1..] {
+                let width_m = (b - a).norm();
+                if width_m <= 2.0 * radius_m || width_m >= narrowest_m {
+                    continue;
+                }
+                let centre = (a + b) / 2.0;
+                if map.distance_m(centre) < width_m / 2.0 - 1e-9 {
+                    continue;
+                }
+                let along = (b - a) / width_m;
+                gates.push(Gate {
+                    centre,
+                    normal: Vec2::new(-along.y, along.x),
+                    along,
+                    width_m,
+                });
+            }
+        }
+        gates
+    }
+}
+
+/// An agent as the door's turns see it: where it is, where it goes, whether it takes part.
+#[derive(Debug, Clone, Copy)]
+pub struct Mover {
+    pub position: Vec2,
+    pub goal: Vec2,
+    pub moving: bool,
 }
 
 /// Roadmap nodes, and which pairs see each other with a person's radius of clearance.
@@ -69,11 +139,67 @@ impl Walls {
             person_radius_m,
             person_radius_m + cfg.walls.roadmap.corner_offset_m,
         );
+        let r = &cfg.walls.roadmap;
+        let doors = Gate::find(&map, person_radius_m, r.one_way_gap_m);
         Ok(Self {
             map,
             obstacles,
             roadmap,
+            doors,
+            door_zone_m: r.door_zone_m,
+            door_wait_m: (r.door_wait_back_m, r.door_wait_aside_m),
         })
+    }
+
+    /// The one-way passages ([`Gate`]).
+    pub fn doors(&self) -> &[Gate] {
+        &self.doors
+    }
+
+    /// Whether mover `k` must wait for its turn at a door, and where: `Some(spot)` when it is
+    /// within the door's zone about to cross it (its goal on the far side) and another mover it
+    /// `sees`, about to cross the other way, is nearer the door (the lower index on a tie). The
+    /// spot is on its own side, back from the door and aside from its axis, so that the one
+    /// coming through passes. Stateless, as the roadmap: the nearest to the door goes first,
+    /// and whoever follows it the same way goes too.
+    pub fn door_turn(
+        &self,
+        k: usize,
+        movers: &[Mover],
+        sees: impl Fn(usize) -> bool,
+    ) -> Option<Vec2> {
+        let me = movers[k];
+        if !me.moving {
+            return None;
+        }
+        for door in &self.doors {
+            let crossing = |m: &Mover| {
+                let d = (m.position - door.centre).norm();
+                let (here, there) = (door.side(m.position), door.side(m.goal));
+                (d <= self.door_zone_m && here != there).then_some((d, there))
+            };
+            let Some((d_me, way)) = crossing(&me) else {
+                continue;
+            };
+            let first = movers.iter().enumerate().any(|(j, m)| {
+                j != k
+                    && m.moving
+                    && sees(j)
+                    && crossing(m).is_some_and(|(d, w)| w != way && (d, j) < (d_me, k))
+            });
+            if first {
+                let aside = if (me.position - door.centre).dot(&door.along) >= 0.0 {
+                    1.0
+                } else {
+                    -1.0
+                };
+                let (back, beside) = self.door_wait_m;
+                return Some(
+                    door.centre - door.normal * (way * back) + door.along * (aside * beside),
+                );
+            }
+        }
+        None
     }
 
     pub fn map(&self) -> &StaticMap {
