@@ -8,7 +8,7 @@
 //! `FSRL_SERVE_MODEL` names another (e.g. a shipped `fsrl-plan` model, which plans by itself);
 //! its own decision is timed on one thread and on every core (`fsrl serve`'s default).
 //! Among walls: one decision of the shipped corridor model in room scenes with 10 people (issue
-//! 53's bound: 2 ms p99 on two threads).
+//! 53's bound: 2 ms p99 on two threads); `FSRL_SERVE_BENCH=walls` times those alone.
 //! `cargo bench --workspace --bench serve`.
 
 use std::path::Path;
@@ -259,7 +259,9 @@ fn main() {
     let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
     let threads: Vec<usize> = if cores > 1 { vec![1, cores] } else { vec![1] };
     println!("model: {}", model_path().display());
-    for people in [5, 10] {
+    // FSRL_SERVE_BENCH=walls: the walled decisions only (profiling them).
+    let only_walls = std::env::var("FSRL_SERVE_BENCH").is_ok_and(|v| v == "walls");
+    for people in [5, 10].into_iter().filter(|_| !only_walls) {
         let own = decisions(people, None, 1);
         if cores > 1 {
             decisions(people, None, cores);
@@ -278,7 +280,7 @@ fn main() {
     for t in &threads {
         walled_decisions(*t);
     }
-    for people in [5, 10] {
+    for people in [5, 10].into_iter().filter(|_| !only_walls) {
         input_to_command(people);
     }
 }
