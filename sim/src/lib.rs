@@ -37,6 +37,7 @@ pub mod scenario;
 pub mod scene_map;
 pub mod scene_problem;
 pub mod scenes;
+pub mod social_force;
 pub mod walled;
 
 pub use config::{ConfigError, DynamicReading, EnvKind, Kinematics, Semantics, Setting, SimConfig};
