@@ -27,6 +27,9 @@ use crate::geom::Vec2;
 /// psf's default number of obstacle sample points per metre (`Simulator`'s fallback).
 pub const DEFAULT_RESOLUTION_PER_M: f64 = 10.0;
 
+/// A segment may give at most this many sample points (a guard against absurd lengths).
+pub const MAX_SAMPLES_PER_SEGMENT: usize = 10_000_000;
+
 /// Bad input to the social force model. The model never panics on input.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum SocialForceError {
@@ -47,6 +50,15 @@ pub enum SocialForceError {
          point at {resolution_per_m} points per metre (pysocialforce raises a ValueError)"
     )]
     ShortSegment {
+        segment: usize,
+        length_m: f64,
+        resolution_per_m: f64,
+    },
+    #[error(
+        "social force: obstacle segment {segment} is {length_m} m long: at {resolution_per_m} \
+         points per metre that is more than {MAX_SAMPLES_PER_SEGMENT} sample points"
+    )]
+    SegmentTooLong {
         segment: usize,
         length_m: f64,
         resolution_per_m: f64,
@@ -349,8 +361,16 @@ pub fn sample_segment(
     let (dx, dy) = (s.x - e.x, s.y - e.y);
     let length_m = (dx * dx + dy * dy).sqrt();
     let samples_f = length_m * resolution_per_m;
-    // `int()` truncates; a count beyond any memory is refused like a short segment would be.
-    if !(samples_f >= 1.0 && samples_f < 1e9) {
+    // A count beyond any memory (or an overflowed length) is refused.
+    if samples_f.is_nan() || samples_f >= MAX_SAMPLES_PER_SEGMENT as f64 {
+        return Err(SocialForceError::SegmentTooLong {
+            segment: segment_index,
+            length_m,
+            resolution_per_m,
+        });
+    }
+    // `int()` truncates.
+    if samples_f < 1.0 {
         return Err(SocialForceError::ShortSegment {
             segment: segment_index,
             length_m,
@@ -889,8 +909,8 @@ impl SocialForceSim {
             let wa = (prm.n * b) * theta;
             let a_v = (base - wv * wv).exp();
             let a_theta = -np_sign(theta) * (base - wa * wa).exp();
-            // left normal of t: (t_y·(−1), t_x·1).
-            let (nx, ny) = (ty * -1.0, tx);
+            // left normal of t: (t_y·(−1), t_x·1), both exact.
+            let (nx, ny) = (-ty, tx);
             sum.add(a_v * tx + a_theta * nx, a_v * ty + a_theta * ny);
         }
         let (x, y) = sum.or_zero();
@@ -1005,5 +1025,200 @@ fn check_finite(agent: usize, what: &'static str, v: Vec2) -> Result<(), SocialF
         Ok(())
     } else {
         Err(SocialForceError::NonFiniteAgent { agent, what })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn ped(px: f64, py: f64, vx: f64, vy: f64, gx: f64, gy: f64) -> Pedestrian {
+        Pedestrian {
+            position: Vec2::new(px, py),
+            velocity: Vec2::new(vx, vy),
+            goal: Vec2::new(gx, gy),
+        }
+    }
+
+    #[test]
+    fn psf_norm_is_the_x87_norm_not_the_plain_one() {
+        // testdata/sf_ref/circle_n05_s105: agent 1's initial velocity and psf's max speed.
+        let (vx, vy) = (0.7774194646001996, 0.08768362457783625);
+        assert_eq!(1.3 * psf_norm(vx, vy), 1.0170532714217293);
+        assert_ne!(1.3 * (vx * vx + vy * vy).sqrt(), 1.0170532714217293);
+    }
+
+    #[test]
+    fn psf_norm_basics() {
+        assert_eq!(psf_norm(3.0, 4.0), 5.0);
+        assert_eq!(psf_norm(-3.0, 4.0), 5.0);
+        assert_eq!(psf_norm(0.0, -0.0), 0.0);
+        assert_eq!(psf_norm(0.0, -2.5), 2.5);
+        assert_eq!(psf_norm(1e300, 1e300), 1e300 * std::f64::consts::SQRT_2);
+        assert_eq!(psf_norm(f64::MAX, f64::MAX), f64::INFINITY);
+        assert_eq!(psf_norm(f64::INFINITY, 1.0), f64::INFINITY);
+        assert!(psf_norm(f64::NAN, f64::INFINITY).is_nan());
+        assert_eq!(psf_norm(5e-324, 0.0), 5e-324);
+        // Within one ulp of the plain norm, symmetric, and exact under scaling by 2^k.
+        let mut s = 0x9e37_79b9_7f4a_7c15u64;
+        let mut next = || {
+            s ^= s << 13;
+            s ^= s >> 7;
+            s ^= s << 17;
+            (s >> 11) as f64 / (1u64 << 53) as f64 * 20.0 - 10.0
+        };
+        let mut differ = 0;
+        for _ in 0..20_000 {
+            let (x, y) = (next(), next());
+            let n = psf_norm(x, y);
+            let plain = (x * x + y * y).sqrt();
+            assert!(
+                (n - plain).abs() <= plain * f64::EPSILON,
+                "{x} {y}: {n} vs {plain}"
+            );
+            differ += usize::from(n != plain);
+            assert_eq!(n, psf_norm(y, -x));
+            assert_eq!(psf_norm(x * 1024.0, y * 1024.0), n * 1024.0);
+        }
+        // The README: about 17% of cases differ from the plain norm.
+        assert!((2000..5000).contains(&differ), "{differ} of 20000 differ");
+    }
+
+    #[test]
+    fn segments_are_sampled_like_numpy_linspace() {
+        let mut pts = Vec::new();
+        let wall = Segment::from_psf([-10.0, 10.0, 1.5, 1.5]);
+        sample_segment(&wall, 10.0, 0, &mut pts).unwrap();
+        assert_eq!(pts.len(), 200);
+        assert_eq!(pts[0], Vec2::new(-10.0, 1.5));
+        assert_eq!(pts[199], Vec2::new(10.0, 1.5));
+        assert_eq!(pts[1].x, 20.0 / 199.0 - 10.0);
+        pts.clear();
+        let short = Segment::from_psf([0.0, 0.15, 0.0, 0.0]);
+        sample_segment(&short, 10.0, 0, &mut pts).unwrap();
+        assert_eq!(pts, vec![Vec2::new(0.0, 0.0)]);
+        let tiny = Segment::from_psf([0.0, 0.05, 0.0, 0.0]);
+        assert!(matches!(
+            sample_segment(&tiny, 10.0, 3, &mut pts),
+            Err(SocialForceError::ShortSegment { segment: 3, .. })
+        ));
+        let huge = Segment::from_psf([-1e308, 1e308, 0.0, 0.0]);
+        assert!(matches!(
+            sample_segment(&huge, 10.0, 4, &mut pts),
+            Err(SocialForceError::SegmentTooLong { segment: 4, .. })
+        ));
+    }
+
+    #[test]
+    fn bad_input_is_an_error() {
+        let p = SocialForceParams::default();
+        let a = ped(0.0, 0.0, 1.0, 0.0, 5.0, 0.0);
+        let b = ped(2.0, 0.0, -1.0, 0.0, -5.0, 0.0);
+        assert_eq!(
+            SocialForceSim::new(p, &[], &[], &[]).unwrap_err(),
+            SocialForceError::NoAgents
+        );
+        let nan = ped(f64::NAN, 0.0, 1.0, 0.0, 5.0, 0.0);
+        assert!(matches!(
+            SocialForceSim::new(p, &[a, nan], &[], &[]),
+            Err(SocialForceError::NonFiniteAgent {
+                agent: 1,
+                what: "position"
+            })
+        ));
+        assert!(matches!(
+            SocialForceSim::new(p, &[a, b], &[], &[vec![0, 2]]),
+            Err(SocialForceError::GroupMemberOutOfRange { member: 2, .. })
+        ));
+        assert!(matches!(
+            SocialForceSim::new(p, &[a, b], &[], &[vec![1, 1]]),
+            Err(SocialForceError::DuplicateGroupMember { member: 1, .. })
+        ));
+        let mut bad = p;
+        bad.scene.step_width_s = 0.0;
+        assert!(matches!(
+            SocialForceSim::new(bad, &[a, b], &[], &[]),
+            Err(SocialForceError::BadParam {
+                name: "scene.step_width",
+                ..
+            })
+        ));
+        let mut bad = p;
+        bad.social_force.gamma = f64::NAN;
+        assert!(matches!(
+            SocialForceSim::new(bad, &[a, b], &[], &[]),
+            Err(SocialForceError::BadParam {
+                name: "social_force.gamma",
+                ..
+            })
+        ));
+        let mut sim = SocialForceSim::new(p, &[a, b], &[], &[]).unwrap();
+        assert!(matches!(
+            sim.set_kinematics(&[Vec2::zeros()], &[Vec2::zeros(), Vec2::zeros()]),
+            Err(SocialForceError::LengthMismatch {
+                what: "positions",
+                expected: 2,
+                got: 1
+            })
+        ));
+        assert!(matches!(
+            sim.set_kinematics(
+                &[Vec2::zeros(); 2],
+                &[Vec2::zeros(), Vec2::new(0.0, f64::INFINITY)]
+            ),
+            Err(SocialForceError::NonFiniteAgent {
+                agent: 1,
+                what: "velocity"
+            })
+        ));
+    }
+
+    #[test]
+    fn coincident_agents_with_one_velocity_are_an_error_and_leave_the_state() {
+        // psf divides 0 by B = 0 here and carries NaN on.
+        let a = ped(1.0, 1.0, 0.5, 0.0, 5.0, 1.0);
+        let mut sim = SocialForceSim::new(SocialForceParams::default(), &[a, a], &[], &[]).unwrap();
+        assert!(matches!(
+            sim.step(),
+            Err(SocialForceError::NonFiniteStep { agent: 0, .. })
+        ));
+        assert_eq!(sim.pedestrians(), &[a, a]);
+    }
+
+    #[test]
+    fn psf_quirks_resting_starts_and_arrival() {
+        // An agent that starts at rest has desired speed 0 and never moves; one that starts
+        // within 0.5 m of its goal is frozen at once.
+        let resting = ped(0.0, 0.0, 0.0, 0.0, 10.0, 0.0);
+        let near = ped(0.0, 5.0, 0.3, 0.0, 0.4, 5.0);
+        let mover = ped(0.0, -5.0, 1.0, 0.0, 10.0, -5.0);
+        let p = SocialForceParams::default();
+        let mut sim = SocialForceSim::new(p, &[resting, near, mover], &[], &[]).unwrap();
+        assert_eq!(sim.max_speeds_mps()[2], 1.3);
+        for _ in 0..20 {
+            sim.step().unwrap();
+        }
+        let peds = sim.pedestrians();
+        // Its cap is 0: whatever the forces, the capped velocity is 0.
+        assert_eq!(peds[0].position, resting.position);
+        assert_eq!(peds[1].position, near.position);
+        assert_eq!(peds[1].velocity, Vec2::zeros());
+        // The mover walks at its cap, 1.3 × its initial speed, 0.4 s a step.
+        assert!(
+            peds[2].position.x > 10.0 - 0.5 - 1.3 * 0.4,
+            "{:?}",
+            peds[2].position
+        );
+        assert!(peds[2].velocity.norm() <= 1.3 + 1e-12);
+    }
+
+    #[test]
+    fn coherence_factors_are_psf_constants() {
+        assert_eq!(group_coherence_factor(2), 0.2689414213699951);
+        assert_eq!(group_coherence_factor(1), 0.5);
+        let c5 = group_coherence_factor(5);
+        assert!(
+            (c5 - ((-2f64).tanh() + 1.0) / 2.0).abs() < 1e-16 && c5 < group_coherence_factor(4)
+        );
     }
 }
