@@ -796,23 +796,29 @@ impl SocialForceSim {
             self.group_terms();
         }
         for i in 0..n {
-            // Python's `sum` starts from the integer 0.
-            let (mut fx, mut fy) = self.desired_force(i);
-            fx += 0.0;
-            fy += 0.0;
-            let (sx, sy) = self.social_term(i);
-            fx += sx;
-            fy += sy;
-            let (ox, oy) = self.obstacle_term(i);
-            fx += ox;
-            fy += oy;
+            let me = &self.peds[i];
+            let others = self
+                .peds
+                .iter()
+                .enumerate()
+                .filter(|&(j, _)| j != i)
+                .map(|(_, o)| (o.position, o.velocity));
+            let mut f = agent_force(
+                &self.params,
+                me.position,
+                me.velocity,
+                me.goal,
+                self.max_speeds_mps[i],
+                others,
+                &self.obstacle_points,
+            );
             if group {
                 for g in &self.group_forces {
-                    fx += g[i].x;
-                    fy += g[i].y;
+                    f.x += g[i].x;
+                    f.y += g[i].y;
                 }
             }
-            self.forces[i] = Vec2::new(fx, fy);
+            self.forces[i] = f;
         }
         &self.forces
     }
@@ -823,27 +829,17 @@ impl SocialForceSim {
     pub fn step(&mut self) -> Result<(), SocialForceError> {
         self.compute_forces();
         let dt = self.params.scene.step_width_s;
-        let arrive = self.params.scene.arrive_radius_m;
         for (i, ped) in self.peds.iter().enumerate() {
-            let f = self.forces[i];
-            let (p, v, g) = (ped.position, ped.velocity, ped.goal);
-            let mut wx = v.x + dt * f.x;
-            let mut wy = v.y + dt * f.y;
-            // capped_velocity: plain double norm here.
-            let speed = (wx * wx + wy * wy).sqrt();
-            let factor = if speed == 0.0 {
-                0.0
-            } else {
-                np_minimum(1.0, self.max_speeds_mps[i] / speed)
-            };
-            wx *= factor;
-            wy *= factor;
-            if psf_norm(g.x - p.x, g.y - p.y) < arrive {
-                wx = 0.0;
-                wy = 0.0;
-            }
-            let next_p = Vec2::new(p.x + wx * dt, p.y + wy * dt);
-            let next_v = Vec2::new(wx, wy);
+            let next_v = step_velocity(
+                &self.params.scene,
+                ped.position,
+                ped.velocity,
+                ped.goal,
+                self.max_speeds_mps[i],
+                self.forces[i],
+            );
+            let p = ped.position;
+            let next_p = Vec2::new(p.x + next_v.x * dt, p.y + next_v.y * dt);
             if !(next_v.x.is_finite() && next_v.y.is_finite()) {
                 return Err(SocialForceError::NonFiniteStep {
                     agent: i,
@@ -863,82 +859,6 @@ impl SocialForceSim {
             ped.velocity = *v;
         }
         Ok(())
-    }
-
-    /// `DesiredForce`: `(e·max_speed − v)/relaxation_time · factor` beyond the goal threshold,
-    /// `(−v)/relaxation_time · factor` within it.
-    fn desired_force(&self, i: usize) -> (f64, f64) {
-        let prm = &self.params.desired_force;
-        let ped = &self.peds[i];
-        let (ex, ey, dist) = unit(ped.goal.x - ped.position.x, ped.goal.y - ped.position.y);
-        let (fx, fy) = if dist > prm.goal_threshold_m {
-            let s = self.max_speeds_mps[i];
-            (ex * s - ped.velocity.x, ey * s - ped.velocity.y)
-        } else {
-            (-ped.velocity.x, -ped.velocity.y)
-        };
-        (
-            (fx / prm.relaxation_time_s) * prm.factor,
-            (fy / prm.relaxation_time_s) * prm.factor,
-        )
-    }
-
-    /// `SocialForce` on agent i from every other agent in index order. θ is not wrapped (psf).
-    fn social_term(&self, i: usize) -> (f64, f64) {
-        let prm = &self.params.social_force;
-        let me = &self.peds[i];
-        let mut sum = Sum(None);
-        for (j, other) in self.peds.iter().enumerate() {
-            if j == i {
-                continue;
-            }
-            let (ex, ey, dist) = unit(
-                me.position.x - other.position.x,
-                me.position.y - other.position.y,
-            );
-            let dvx = -(me.velocity.x - other.velocity.x);
-            let dvy = -(me.velocity.y - other.velocity.y);
-            let (tx, ty, d_len) = unit(
-                prm.lambda_importance * dvx + ex,
-                prm.lambda_importance * dvy + ey,
-            );
-            let theta = ty.atan2(tx) - ey.atan2(ex);
-            let b = prm.gamma * d_len;
-            let base = -dist / b;
-            let wv = (prm.n_prime * b) * theta;
-            let wa = (prm.n * b) * theta;
-            let a_v = (base - wv * wv).exp();
-            let a_theta = -np_sign(theta) * (base - wa * wa).exp();
-            // left normal of t: (t_y·(−1), t_x·1), both exact.
-            let (nx, ny) = (-ty, tx);
-            sum.add(a_v * tx + a_theta * nx, a_v * ty + a_theta * ny);
-        }
-        let (x, y) = sum.or_zero();
-        (x * prm.factor, y * prm.factor)
-    }
-
-    /// `ObstacleForce`: `Σ unit(p − o)·exp(−s/σ)` over the sampled points o with
-    /// `s = |p − o| − agent_radius < threshold + agent_radius`, times the factor.
-    fn obstacle_term(&self, i: usize) -> (f64, f64) {
-        if self.obstacle_points.is_empty() {
-            return (0.0, 0.0);
-        }
-        let prm = &self.params.obstacle_force;
-        let radius = self.params.scene.agent_radius_m;
-        let threshold = prm.threshold_m + radius;
-        let p = self.peds[i].position;
-        let mut sum = Sum(None);
-        for o in &self.obstacle_points {
-            let (ex, ey, d) = unit(p.x - o.x, p.y - o.y);
-            let s = d - radius;
-            if s < threshold {
-                let w = (-s / prm.sigma_m).exp();
-                sum.add(ex * w, ey * w);
-            }
-        }
-        // Every point beyond the threshold: psf leaves the row at +0.
-        let (x, y) = sum.or_zero();
-        (x * prm.factor, y * prm.factor)
     }
 
     /// The three group forces into `group_forces` (coherence, repulsion, gaze), each summed over
@@ -1018,6 +938,140 @@ impl SocialForceSim {
             g.iter_mut().for_each(|f| *f *= factor);
         }
     }
+}
+
+/// The force psf's `compute_forces` puts on one agent, groups left out: `DesiredForce` toward
+/// `goal` at `speed_mps` (psf's max speed), plus `SocialForce` from `others` (each as
+/// (position, velocity), summed in the order given), plus `ObstacleForce` from
+/// `obstacle_points`, in m/s². [`SocialForceSim`] sums exactly this (then the group forces), so
+/// a caller that keeps its own agents (fsrl's environment, `sim::env`) steps the same model.
+pub fn agent_force(
+    params: &SocialForceParams,
+    position: Vec2,
+    velocity: Vec2,
+    goal: Vec2,
+    speed_mps: f64,
+    others: impl IntoIterator<Item = (Vec2, Vec2)>,
+    obstacle_points: &[Vec2],
+) -> Vec2 {
+    // Python's `sum` starts from the integer 0.
+    let (mut fx, mut fy) =
+        desired_force(&params.desired_force, position, velocity, goal, speed_mps);
+    fx += 0.0;
+    fy += 0.0;
+    let (sx, sy) = social_term(&params.social_force, position, velocity, others);
+    fx += sx;
+    fy += sy;
+    let (ox, oy) = obstacle_term(params, position, obstacle_points);
+    fx += ox;
+    fy += oy;
+    Vec2::new(fx, fy)
+}
+
+/// psf's `PedState.step` velocity for one agent: `v* = v + Δt·F` (Δt = `scene.step_width_s`)
+/// capped at `max_speed_mps`, and 0 when the agent starts the step closer than
+/// `scene.arrive_radius_m` to `goal`.
+pub fn step_velocity(
+    scene: &SceneParams,
+    position: Vec2,
+    velocity: Vec2,
+    goal: Vec2,
+    max_speed_mps: f64,
+    force: Vec2,
+) -> Vec2 {
+    let dt = scene.step_width_s;
+    let mut wx = velocity.x + dt * force.x;
+    let mut wy = velocity.y + dt * force.y;
+    // capped_velocity: plain double norm here.
+    let speed = (wx * wx + wy * wy).sqrt();
+    let factor = if speed == 0.0 {
+        0.0
+    } else {
+        np_minimum(1.0, max_speed_mps / speed)
+    };
+    wx *= factor;
+    wy *= factor;
+    if psf_norm(goal.x - position.x, goal.y - position.y) < scene.arrive_radius_m {
+        wx = 0.0;
+        wy = 0.0;
+    }
+    Vec2::new(wx, wy)
+}
+
+/// `DesiredForce`: `(e·max_speed − v)/relaxation_time · factor` beyond the goal threshold,
+/// `(−v)/relaxation_time · factor` within it.
+fn desired_force(
+    prm: &DesiredForceParams,
+    position: Vec2,
+    velocity: Vec2,
+    goal: Vec2,
+    speed_mps: f64,
+) -> (f64, f64) {
+    let (ex, ey, dist) = unit(goal.x - position.x, goal.y - position.y);
+    let (fx, fy) = if dist > prm.goal_threshold_m {
+        (ex * speed_mps - velocity.x, ey * speed_mps - velocity.y)
+    } else {
+        (-velocity.x, -velocity.y)
+    };
+    (
+        (fx / prm.relaxation_time_s) * prm.factor,
+        (fy / prm.relaxation_time_s) * prm.factor,
+    )
+}
+
+/// `SocialForce` on the agent at (`position`, `velocity`) from `others` in the order given. θ is
+/// not wrapped (psf).
+fn social_term(
+    prm: &SocialTermParams,
+    position: Vec2,
+    velocity: Vec2,
+    others: impl IntoIterator<Item = (Vec2, Vec2)>,
+) -> (f64, f64) {
+    let mut sum = Sum(None);
+    for (other_position, other_velocity) in others {
+        let (ex, ey, dist) = unit(position.x - other_position.x, position.y - other_position.y);
+        let dvx = -(velocity.x - other_velocity.x);
+        let dvy = -(velocity.y - other_velocity.y);
+        let (tx, ty, d_len) = unit(
+            prm.lambda_importance * dvx + ex,
+            prm.lambda_importance * dvy + ey,
+        );
+        let theta = ty.atan2(tx) - ey.atan2(ex);
+        let b = prm.gamma * d_len;
+        let base = -dist / b;
+        let wv = (prm.n_prime * b) * theta;
+        let wa = (prm.n * b) * theta;
+        let a_v = (base - wv * wv).exp();
+        let a_theta = -np_sign(theta) * (base - wa * wa).exp();
+        // left normal of t: (t_y·(−1), t_x·1), both exact.
+        let (nx, ny) = (-ty, tx);
+        sum.add(a_v * tx + a_theta * nx, a_v * ty + a_theta * ny);
+    }
+    let (x, y) = sum.or_zero();
+    (x * prm.factor, y * prm.factor)
+}
+
+/// `ObstacleForce`: `Σ unit(p − o)·exp(−s/σ)` over the sampled points o with
+/// `s = |p − o| − agent_radius < threshold + agent_radius`, times the factor.
+fn obstacle_term(params: &SocialForceParams, p: Vec2, obstacle_points: &[Vec2]) -> (f64, f64) {
+    if obstacle_points.is_empty() {
+        return (0.0, 0.0);
+    }
+    let prm = &params.obstacle_force;
+    let radius = params.scene.agent_radius_m;
+    let threshold = prm.threshold_m + radius;
+    let mut sum = Sum(None);
+    for o in obstacle_points {
+        let (ex, ey, d) = unit(p.x - o.x, p.y - o.y);
+        let s = d - radius;
+        if s < threshold {
+            let w = (-s / prm.sigma_m).exp();
+            sum.add(ex * w, ey * w);
+        }
+    }
+    // Every point beyond the threshold: psf leaves the row at +0.
+    let (x, y) = sum.or_zero();
+    (x * prm.factor, y * prm.factor)
 }
 
 fn check_finite(agent: usize, what: &'static str, v: Vec2) -> Result<(), SocialForceError> {
