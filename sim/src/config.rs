@@ -317,6 +317,89 @@ pub struct HumanConfig {
     pub standing_clear_of_robot_m: f64,
     /// Give up placing a human after this many rejected draws.
     pub max_spawn_attempts: usize,
+    /// How the people decide where to walk: ORCA (the default), the social force model
+    /// (`[sim.social_force]`), or a mix of both. Standing humans stand whatever their model.
+    #[serde(skip_serializing_if = "CrowdModel::is_orca")]
+    pub model: CrowdModel,
+    /// With `model = "mixed"`: the probability that a person follows the social force model,
+    /// drawn per person per episode from the episode's seed (a stream of its own: the scenario's
+    /// draws are unchanged).
+    #[serde(skip_serializing_if = "is_default_social_force_fraction")]
+    pub social_force_fraction: f64,
+    /// HEIGHT's `visible_prob`: the probability that a person notices the robot, drawn per
+    /// person per episode from the seed. One who does not leaves the robot out of its ORCA
+    /// neighbours or its social force, as everyone does in an invisible setting.
+    #[serde(skip_serializing_if = "is_one")]
+    pub visible_prob: f64,
+}
+
+/// The people's motion model (`humans.model`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum CrowdModel {
+    /// Every person runs ORCA (SPEC §2).
+    #[default]
+    Orca,
+    /// Every person follows pysocialforce's social force model (`docs/SOCIAL_FORCE.md`).
+    SocialForce,
+    /// Each person follows the social force model with probability `humans.social_force_fraction`,
+    /// ORCA otherwise.
+    Mixed,
+}
+
+impl CrowdModel {
+    pub fn name(self) -> &'static str {
+        match self {
+            CrowdModel::Orca => "orca",
+            CrowdModel::SocialForce => "social-force",
+            CrowdModel::Mixed => "mixed",
+        }
+    }
+
+    fn is_orca(&self) -> bool {
+        *self == CrowdModel::Orca
+    }
+}
+
+impl fmt::Display for CrowdModel {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+impl FromStr for CrowdModel {
+    type Err = UnknownName;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        match s {
+            "orca" => Ok(CrowdModel::Orca),
+            "social-force" => Ok(CrowdModel::SocialForce),
+            "mixed" => Ok(CrowdModel::Mixed),
+            _ => Err(UnknownName {
+                what: "crowd model",
+                name: s.to_string(),
+                expected: "orca, social-force, mixed",
+            }),
+        }
+    }
+}
+
+/// `humans.social_force_fraction`'s default.
+pub const DEFAULT_SOCIAL_FORCE_FRACTION: f64 = 0.5;
+
+fn is_default_social_force_fraction(v: &f64) -> bool {
+    *v == DEFAULT_SOCIAL_FORCE_FRACTION
+}
+
+fn is_one(v: &f64) -> bool {
+    *v == 1.0
+}
+
+impl HumanConfig {
+    /// Whether every person runs ORCA and notices the robot (today's crowd): the env then draws
+    /// nothing for the people's models.
+    pub fn is_plain_orca(&self) -> bool {
+        self.model == CrowdModel::Orca && self.visible_prob == 1.0
+    }
 }
 
 impl Default for HumanConfig {
@@ -332,6 +415,9 @@ impl Default for HumanConfig {
             spawn_gap_m: 0.2,
             standing_clear_of_robot_m: 1.0,
             max_spawn_attempts: 10_000,
+            model: CrowdModel::Orca,
+            social_force_fraction: DEFAULT_SOCIAL_FORCE_FRACTION,
+            visible_prob: 1.0,
         }
     }
 }
@@ -500,7 +586,146 @@ pub struct SimConfig {
     /// so that every config, model and report written before walls existed is byte-identical.
     #[serde(skip_serializing_if = "WallsConfig::is_default")]
     pub walls: WallsConfig,
+    /// The social force model's parameters (people with `humans.model` social-force or mixed).
+    /// Left out of a serialised config when it holds the defaults.
+    #[serde(skip_serializing_if = "SocialForceConfig::is_default")]
+    pub social_force: SocialForceConfig,
 }
+
+/// The social force model's parameters (`[sim.social_force]`): pysocialforce 1.1.2's defaults,
+/// in SI units. What fsrl takes elsewhere: the time step is `dt_s` (psf: 0.4 s), the desired
+/// speed and speed cap are each person's `humans.v_pref_mps` (psf: 1.3 × the initial speed), and
+/// groups are not used. See `docs/SOCIAL_FORCE.md`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct SocialForceConfig {
+    /// `desired_force.factor`.
+    pub desired_factor: f64,
+    /// `desired_force.relaxation_time`.
+    pub relaxation_time_s: f64,
+    /// `desired_force.goal_threshold`: nearer its goal a person only brakes.
+    pub goal_threshold_m: f64,
+    /// `social_force.factor`.
+    pub social_factor: f64,
+    /// `social_force.lambda_importance` (λ).
+    pub lambda_importance: f64,
+    /// `social_force.gamma` (γ).
+    pub gamma: f64,
+    /// `social_force.n`.
+    pub n: f64,
+    /// `social_force.n_prime` (n′).
+    pub n_prime: f64,
+    /// `obstacle_force.factor`.
+    pub obstacle_factor: f64,
+    /// `obstacle_force.sigma`.
+    pub obstacle_sigma_m: f64,
+    /// `obstacle_force.threshold`.
+    pub obstacle_threshold_m: f64,
+    /// `scene.agent_radius`: the radius the obstacle force reads (not `humans.radius_m`).
+    pub agent_radius_m: f64,
+    /// `scene.resolution`: points sampled per metre of wall.
+    pub resolution_per_m: f64,
+    /// psf's hard-coded 0.5 m: a person who starts a step nearer its goal stands still.
+    pub arrive_radius_m: f64,
+}
+
+impl Default for SocialForceConfig {
+    fn default() -> Self {
+        let p = crate::social_force::SocialForceParams::default();
+        Self {
+            desired_factor: p.desired_force.factor,
+            relaxation_time_s: p.desired_force.relaxation_time_s,
+            goal_threshold_m: p.desired_force.goal_threshold_m,
+            social_factor: p.social_force.factor,
+            lambda_importance: p.social_force.lambda_importance,
+            gamma: p.social_force.gamma,
+            n: p.social_force.n,
+            n_prime: p.social_force.n_prime,
+            obstacle_factor: p.obstacle_force.factor,
+            obstacle_sigma_m: p.obstacle_force.sigma_m,
+            obstacle_threshold_m: p.obstacle_force.threshold_m,
+            agent_radius_m: p.scene.agent_radius_m,
+            resolution_per_m: p.scene.resolution_per_m,
+            arrive_radius_m: p.scene.arrive_radius_m,
+        }
+    }
+}
+
+impl SocialForceConfig {
+    pub fn is_default(&self) -> bool {
+        *self == SocialForceConfig::default()
+    }
+
+    /// The model's parameters for an environment stepping every `dt_s`: psf's defaults with
+    /// these values, Δt = `dt_s`, and groups off.
+    pub fn params(&self, dt_s: f64) -> crate::social_force::SocialForceParams {
+        use crate::social_force::*;
+        let d = SocialForceParams::default();
+        SocialForceParams {
+            scene: SceneParams {
+                step_width_s: dt_s,
+                agent_radius_m: self.agent_radius_m,
+                resolution_per_m: self.resolution_per_m,
+                enable_group: false,
+                arrive_radius_m: self.arrive_radius_m,
+                ..d.scene
+            },
+            desired_force: DesiredForceParams {
+                factor: self.desired_factor,
+                relaxation_time_s: self.relaxation_time_s,
+                goal_threshold_m: self.goal_threshold_m,
+            },
+            social_force: SocialTermParams {
+                factor: self.social_factor,
+                lambda_importance: self.lambda_importance,
+                gamma: self.gamma,
+                n: self.n,
+                n_prime: self.n_prime,
+            },
+            obstacle_force: ObstacleForceParams {
+                factor: self.obstacle_factor,
+                sigma_m: self.obstacle_sigma_m,
+                threshold_m: self.obstacle_threshold_m,
+            },
+            ..d
+        }
+    }
+
+    fn check(&self, c: &mut Checker) {
+        for (name, v) in [
+            ("social_force.desired_factor", self.desired_factor),
+            ("social_force.social_factor", self.social_factor),
+            ("social_force.lambda_importance", self.lambda_importance),
+            ("social_force.n", self.n),
+            ("social_force.n_prime", self.n_prime),
+            ("social_force.obstacle_factor", self.obstacle_factor),
+        ] {
+            c.finite(name, v);
+        }
+        c.positive("social_force.relaxation_time_s", self.relaxation_time_s);
+        c.positive("social_force.gamma", self.gamma);
+        c.positive("social_force.obstacle_sigma_m", self.obstacle_sigma_m);
+        c.positive("social_force.resolution_per_m", self.resolution_per_m);
+        if self.resolution_per_m.is_finite() && self.resolution_per_m > MAX_RESOLUTION_PER_M {
+            c.0.push(format!(
+                "social_force.resolution_per_m must be at most {MAX_RESOLUTION_PER_M} points per \
+                 metre, got {}",
+                self.resolution_per_m
+            ));
+        }
+        c.non_negative("social_force.goal_threshold_m", self.goal_threshold_m);
+        c.non_negative(
+            "social_force.obstacle_threshold_m",
+            self.obstacle_threshold_m,
+        );
+        c.non_negative("social_force.agent_radius_m", self.agent_radius_m);
+        c.non_negative("social_force.arrive_radius_m", self.arrive_radius_m);
+    }
+}
+
+/// The most wall points per metre `social_force.resolution_per_m` may ask for (every point
+/// costs an `exp` per person per step).
+pub const MAX_RESOLUTION_PER_M: f64 = 1000.0;
 
 impl Default for SimConfig {
     fn default() -> Self {
@@ -514,6 +739,7 @@ impl Default for SimConfig {
             actions: ActionConfig::default(),
             reward: RewardConfig::default(),
             walls: WallsConfig::default(),
+            social_force: SocialForceConfig::default(),
         }
     }
 }
@@ -843,6 +1069,22 @@ impl SimConfig {
             h.standing_clear_of_robot_m,
         );
         c.at_least("humans.max_spawn_attempts", h.max_spawn_attempts, 1);
+        let unit_interval = |c: &mut Checker, name: &str, v: f64| {
+            if c.finite(name, v) && !(0.0..=1.0).contains(&v) {
+                c.0.push(format!("{name} must be a probability in [0, 1], got {v}"));
+            }
+        };
+        unit_interval(c, "humans.visible_prob", h.visible_prob);
+        unit_interval(c, "humans.social_force_fraction", h.social_force_fraction);
+        if h.model != CrowdModel::Mixed && h.social_force_fraction != DEFAULT_SOCIAL_FORCE_FRACTION
+        {
+            c.0.push(format!(
+                "humans.social_force_fraction ({}) is read only with humans.model = \"mixed\"; \
+                 humans.model is \"{}\"",
+                h.social_force_fraction, h.model
+            ));
+        }
+        self.social_force.check(c);
         if h.standing > h.count {
             c.0.push(format!(
                 "humans.standing ({}) must not exceed humans.count ({})",

@@ -2,13 +2,17 @@
 
 use std::sync::Arc;
 
-use crate::config::{ConfigError, Kinematics, Setting, SimConfig};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+use crate::config::{ConfigError, CrowdModel, Kinematics, Setting, SimConfig};
 use crate::geom::{Vec2, Vec2f};
 use crate::map::StaticMap;
 use crate::orca::{Orca, OrcaAgent, OrcaParams};
 use crate::reward::{evaluate_step_among, evaluate_velocity_step_among, Outcome, StepEval};
 use crate::robot::{ActionSet, RobotState};
 use crate::scenario::{HumanState, Scenario, ScenarioError};
+use crate::social_force::{self as sf, SocialForceParams};
 use crate::walled::{Mover, Route, Walls};
 
 /// Why an environment could not be built or stepped.
@@ -71,7 +75,19 @@ pub struct Env {
     /// Static obstacles, and every human's way to its goal then the robot's (walled only).
     walls: Option<Arc<Walls>>,
     routes: Vec<Route>,
+    /// Per person, drawn from the seed at every reset ([`Env::social_force_humans`],
+    /// [`Env::humans_noticing_robot`]).
+    social: Vec<bool>,
+    notices: Vec<bool>,
+    /// The social force model at the env's `dt_s`, and the walls' sample points it reads (only
+    /// when some person follows it).
+    sf_params: SocialForceParams,
+    sf_points: Vec<Vec2>,
 }
+
+/// The ChaCha stream of an episode's seed that the people's models and noticing are drawn
+/// from; the scenario draws from stream 0, which this leaves untouched.
+pub const PEOPLE_STREAM: u64 = 1;
 
 fn orca_params(cfg: &SimConfig) -> OrcaParams {
     OrcaParams {
@@ -146,13 +162,72 @@ impl Env {
             outcome: Outcome::Running,
             walls: None,
             routes: Vec::new(),
+            social: Vec::with_capacity(n),
+            notices: Vec::with_capacity(n),
+            sf_params: cfg.social_force.params(cfg.dt_s),
+            sf_points: Vec::new(),
             cfg,
             setting,
             seed,
             actions,
         };
         env.set_walls(scenario.walls);
+        env.draw_people();
         env
+    }
+
+    /// Draws each person's model and whether it notices the robot from the seed's
+    /// [`PEOPLE_STREAM`] (two draws per person, in order, whatever the config, so that changing
+    /// one probability does not reshuffle the other), then samples the walls for the social
+    /// force model if anyone follows it. Today's crowd (all ORCA, all noticing) draws nothing.
+    fn draw_people(&mut self) {
+        let h = &self.cfg.humans;
+        let n = self.humans.len();
+        self.social.clear();
+        self.notices.clear();
+        if h.is_plain_orca() {
+            self.social.resize(n, false);
+            self.notices.resize(n, true);
+        } else {
+            let mut rng = ChaCha8Rng::seed_from_u64(self.seed);
+            rng.set_stream(PEOPLE_STREAM);
+            for _ in 0..n {
+                let model_draw: f64 = rng.gen();
+                let notice_draw: f64 = rng.gen();
+                self.social.push(match h.model {
+                    CrowdModel::Orca => false,
+                    CrowdModel::SocialForce => true,
+                    CrowdModel::Mixed => model_draw < h.social_force_fraction,
+                });
+                self.notices.push(notice_draw < h.visible_prob);
+            }
+        }
+        self.sf_points.clear();
+        if let (Some(w), true) = (&self.walls, self.social.contains(&true)) {
+            let resolution = self.sf_params.scene.resolution_per_m;
+            for (k, seg) in w.map().segments().iter().enumerate() {
+                let seg = sf::Segment {
+                    start: seg.a,
+                    end: seg.b,
+                };
+                // psf refuses a segment too short for one sample; here it is its start point.
+                if sf::sample_segment(&seg, resolution, k, &mut self.sf_points).is_err() {
+                    self.sf_points.push(seg.start);
+                }
+            }
+        }
+    }
+
+    /// Per person: whether it follows the social force model this episode (else ORCA).
+    pub fn social_force_humans(&self) -> &[bool] {
+        &self.social
+    }
+
+    /// Per person: whether it notices the robot this episode (`humans.visible_prob`). The robot
+    /// is in a person's ORCA neighbours or social force only when it also is visible in the
+    /// setting.
+    pub fn humans_noticing_robot(&self) -> &[bool] {
+        &self.notices
     }
 
     /// Takes the scenario's walls and plans every agent's way to its goal over them.
@@ -218,6 +293,7 @@ impl Env {
         self.outcome = Outcome::Running;
         self.human_velocity_valid = false;
         self.set_walls(scenario.walls);
+        self.draw_people();
     }
 
     /// Puts the episode in an explicit state with `steps` steps already taken, reusing every
@@ -325,18 +401,27 @@ impl Env {
         }
     }
 
-    /// The velocity every human takes during the coming step: ORCA from the current state for
-    /// dynamic humans (the robot among the neighbours only when visible), zero for standing ones.
+    /// The velocity every human takes during the coming step, from the current state: zero for
+    /// standing humans; for dynamic ones ORCA, or the social force model for those who follow it
+    /// ([`Env::social_force_humans`]). The robot counts only when it is visible and the person
+    /// notices it ([`Env::humans_noticing_robot`]).
     pub fn human_step_velocities(&mut self) -> &[Vec2] {
         if !self.human_velocity_valid {
             self.fill_orca_agents(0.0);
             let n = self.humans.len();
-            let visible_len = if self.setting.robot_visible { n + 1 } else { n };
+            let robot_visible = self.setting.robot_visible;
             self.human_velocity.clear();
             for i in 0..n {
                 let v = if self.humans[i].standing {
                     Vec2::zeros()
+                } else if self.social[i] {
+                    self.social_force_velocity(i)
                 } else {
+                    let visible_len = if robot_visible && self.notices[i] {
+                        n + 1
+                    } else {
+                        n
+                    };
                     let agents = &self.orca_agents[..visible_len];
                     let v = match &self.walls {
                         Some(w) => self.orca.new_velocity_among(i, agents, w.obstacles()),
@@ -349,6 +434,54 @@ impl Env {
             self.human_velocity_valid = true;
         }
         &self.human_velocity
+    }
+
+    /// The social force model's velocity for person `i` over the coming step (psf's
+    /// [`sf::agent_force`] then [`sf::step_velocity`] at `dt_s`): desired speed and speed cap
+    /// are the person's `v_pref_mps`; every other person pushes, the robot too when it is
+    /// visible and noticed, and the walls' sample points. On an open floor the person heads for
+    /// its goal; among walls for the point ORCA's preferred velocity leads to (the roadmap node
+    /// ahead, or a waiting spot at a door), the goal once in sight. A non-finite result (two
+    /// people on one point with one velocity) stands the person still for the step.
+    fn social_force_velocity(&self, i: usize) -> Vec2 {
+        let h = &self.humans[i];
+        let target = match &self.walls {
+            None => h.goal,
+            Some(_) => {
+                let p = self.orca_agents[i].pref_velocity;
+                h.position + Vec2::new(p.x as f64, p.y as f64)
+            }
+        };
+        let others = self
+            .humans
+            .iter()
+            .enumerate()
+            .filter(|&(j, _)| j != i)
+            .map(|(_, o)| (o.position, o.velocity));
+        let robot = (self.setting.robot_visible && self.notices[i])
+            .then_some((self.robot.position, self.robot.velocity));
+        let force = sf::agent_force(
+            &self.sf_params,
+            h.position,
+            h.velocity,
+            target,
+            h.v_pref_mps,
+            others.chain(robot),
+            &self.sf_points,
+        );
+        let v = sf::step_velocity(
+            &self.sf_params.scene,
+            h.position,
+            h.velocity,
+            h.goal,
+            h.v_pref_mps,
+            force,
+        );
+        if v.x.is_finite() && v.y.is_finite() {
+            v
+        } else {
+            Vec2::zeros()
+        }
     }
 
     /// The humans as they will be after the coming step, whatever the robot does.
