@@ -216,6 +216,9 @@ impl Lookahead {
         self.obs
             .extend(self.obstacles.iter().map(|&p| HumanObs::obstacle(p)));
 
+        // The goal the robot observes (`Env::observed_goal`), seen from the current pose for
+        // every candidate as the walls' points are; the rewards keep the goal itself.
+        let seen_goal = env.observed_goal();
         self.batch.clear();
         self.rewards.clear();
         self.terminal.clear();
@@ -247,7 +250,10 @@ impl Lookahead {
                 self.robot_next.push(eval.robot_next);
             }
             featurize_into(
-                &eval.robot_next,
+                &RobotState {
+                    goal: seen_goal,
+                    ..eval.robot_next
+                },
                 &self.obs,
                 self.order,
                 &mut self.order_buf,
@@ -349,6 +355,7 @@ impl Lookahead {
         plan.obs
             .extend(self.obstacles.iter().map(|&p| HumanObs::obstacle(p)));
 
+        let seen_goal = env.observed_goal();
         plan.batch.clear();
         plan.rewards.clear();
         plan.terminal.clear();
@@ -377,7 +384,10 @@ impl Lookahead {
                 plan.terminal.push(eval.outcome.is_terminal());
                 plan.walled.push(eval.wall_contact);
                 featurize_into(
-                    &eval.robot_next,
+                    &RobotState {
+                        goal: seen_goal,
+                        ..eval.robot_next
+                    },
                     &plan.obs,
                     self.order,
                     &mut self.order_buf,

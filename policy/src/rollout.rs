@@ -26,7 +26,10 @@ impl JointState {
         env.static_entities_into(&mut points);
         humans.extend(points.into_iter().map(HumanObs::obstacle));
         Self {
-            robot: *env.robot(),
+            robot: RobotState {
+                goal: env.observed_goal(),
+                ..*env.robot()
+            },
             humans,
         }
     }

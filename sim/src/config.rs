@@ -977,6 +977,10 @@ pub struct RoadmapConfig {
     pub door_wait_back_m: f64,
     /// ...and this far aside from its axis (so that the one coming through passes).
     pub door_wait_aside_m: f64,
+    /// The robot observes, instead of its goal, where the roadmap leads it next (its goal when
+    /// in sight, else the roadmap node on the shortest way there: `Env::observed_goal`). Off
+    /// by default (what every walled model shipped before it was trained with).
+    pub robot_waypoint: bool,
 }
 
 impl Default for RoadmapConfig {
@@ -987,6 +991,7 @@ impl Default for RoadmapConfig {
             door_zone_m: 2.0,
             door_wait_back_m: 1.2,
             door_wait_aside_m: 0.9,
+            robot_waypoint: false,
         }
     }
 }

@@ -241,6 +241,20 @@ impl Env {
         self.walls = walls;
     }
 
+    /// The goal the robot observes: its goal, or among walls with
+    /// `walls.roadmap.robot_waypoint` where the roadmap leads it next (its goal when in sight
+    /// with its radius of clearance, else the node on the shortest way there), as the ORCA
+    /// robot and the people find their way. The reward and the episode's end keep the goal.
+    pub fn observed_goal(&self) -> Vec2 {
+        match (&self.walls, self.routes.last()) {
+            (Some(w), Some(route)) if self.cfg.walls.roadmap.robot_waypoint => {
+                let radius_m = self.robot.radius_m + self.cfg.orca.radius_margin_m;
+                w.target(self.robot.position, route, radius_m).0
+            }
+            _ => self.robot.goal,
+        }
+    }
+
     /// The episode's static obstacles (None on an open floor).
     pub fn walls(&self) -> Option<&Arc<Walls>> {
         self.walls.as_ref()

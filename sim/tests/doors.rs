@@ -88,3 +88,31 @@ fn people_meeting_in_the_door_take_turns_instead_of_deadlocking() {
         "ORCA alone: both still at the door after 20 s: {orca_alone:?}"
     );
 }
+
+/// With `walls.roadmap.robot_waypoint`, the robot observes where the roadmap leads it: from
+/// beside the door, behind the cross wall, a node at the door; straight below the door, its
+/// goal. Without it (the default), its goal.
+#[test]
+fn the_robot_observes_its_waypoint_when_asked() {
+    let observed = |waypoint: bool, at: (f64, f64)| {
+        let mut cfg = SimConfig::default();
+        cfg.walls.roadmap.robot_waypoint = waypoint;
+        let setting: Setting = "doorway".parse().unwrap();
+        let mut env = Env::new(cfg, setting, 7).unwrap();
+        let mut scenario = Scenario {
+            robot: *env.robot(),
+            humans: env.humans().to_vec(),
+            walls: env.walls().cloned(),
+        };
+        scenario.robot.position = Vec2::new(at.0, at.1);
+        env.reset_to_scenario(7, scenario);
+        (env.observed_goal(), env.robot().goal)
+    };
+    let (seen, goal) = observed(true, (-1.4, -1.0));
+    assert!(seen.x.abs() < 0.8 && seen.y.abs() < 0.8, "a node at the door: {seen:?}");
+    assert_ne!(seen, goal);
+    let (seen, goal) = observed(true, (0.0, -2.0));
+    assert_eq!(seen, goal, "the goal in sight through the door");
+    let (seen, goal) = observed(false, (-1.4, -1.0));
+    assert_eq!(seen, goal, "off by default");
+}
