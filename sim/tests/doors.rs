@@ -109,7 +109,10 @@ fn the_robot_observes_its_waypoint_when_asked() {
         (env.observed_goal(), env.robot().goal)
     };
     let (seen, goal) = observed(true, (-1.4, -1.0));
-    assert!(seen.x.abs() < 0.8 && seen.y.abs() < 0.8, "a node at the door: {seen:?}");
+    assert!(
+        seen.x.abs() < 0.8 && seen.y.abs() < 0.8,
+        "a node at the door: {seen:?}"
+    );
     assert_ne!(seen, goal);
     let (seen, goal) = observed(true, (0.0, -2.0));
     assert_eq!(seen, goal, "the goal in sight through the door");
