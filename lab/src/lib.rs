@@ -1,6 +1,6 @@
 //! `lab`: the analysis of fsrl runs, as a library a notebook or another tool can call: evaluation
 //! reports with their intervals and the paper's numbers ([`report`]), comparisons across runs and
-//! arms ([`compare`]), scoring policies for those reports ([`evaluation`]), which weights of a run are its policy ([`select`], [`policy_file`]), the
+//! arms ([`compare`]), scoring policies for those reports ([`evaluation`]), which weights of a run are its policy ([`select`], [`revalidation`], [`policy_file`]), the
 //! validation frontier ([`frontier`]), the figures' numbers ([`figures`], [`picture`]) and the
 //! paper's grid of runs: planning, state on disk, shards and the time it will take ([`grid`]),
 //! and the ORCA robot's baseline tables ([`baseline`]).
@@ -19,4 +19,5 @@ pub mod picture;
 pub mod policy_file;
 pub mod report;
 pub mod run;
+pub mod revalidation;
 pub mod select;

@@ -4,15 +4,18 @@
 //! trainer in `fsrl train --single-process`, by the evaluator process in a distributed run),
 //! and the run's policy (final evaluation, `fsrl export-model RUN`, `fsrl eval RUN`) is the
 //! snapshot the rule chooses: the best validation success, or the lowest validation Disc. among
-//! the good validations after the ε decay. Only validation seeds take part in the choice; a
-//! snapshot file that does not load (damaged, cut short) is reported and never chosen.
+//! the good validations after the ε decay, or the highest return, or (`revalidated-return`,
+//! [`crate::revalidation`]) the best of the highest returns re-validated on fresh validation
+//! seeds. Only validation seeds take part in the choice; a snapshot file that does not load
+//! (damaged, cut short) is reported and never chosen.
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context};
-use policy::method::{Select, LOW_DISC_MIN_SUCCESS};
+use policy::method::{Revalidation, Select, LOW_DISC_MIN_SUCCESS};
 
+use crate::revalidation::Scorer;
 use crate::run::RunFile;
 
 pub use learner::model::{snapshot_dir, snapshot_path};
@@ -147,7 +150,9 @@ pub fn best_return(
     })
 }
 
-/// The validation `rule` chooses among `candidates` (`None` for [`Select::Last`]).
+/// The validation `rule` chooses among `candidates` (`None` for [`Select::Last`]). From the
+/// validations alone [`Select::RevalidatedReturn`] can only say what [`best_return`] says (its
+/// first candidate); its choice is [`crate::revalidation::choose`]'s, which scores again.
 pub fn choose(
     rule: Select,
     candidates: impl IntoIterator<Item = Validation>,
@@ -157,16 +162,22 @@ pub fn choose(
         Select::Last => None,
         Select::BestValidation => best(candidates),
         Select::LowDisc => low_disc(candidates, decay_end_episode),
-        Select::BestReturn => best_return(candidates, decay_end_episode),
+        Select::BestReturn | Select::RevalidatedReturn => {
+            best_return(candidates, decay_end_episode)
+        }
     }
 }
 
 /// The validation `rule` chooses among a run's validations that have their snapshot on disk,
 /// with the snapshot's path; `None` for [`Select::Last`] or without a snapshot.
+/// [`Select::RevalidatedReturn`] re-validates its candidates as `how` says, each with `score`
+/// ([`crate::revalidation::choose`]).
 pub fn chosen_snapshot(
     run_dir: &Path,
     rule: Select,
     decay_end_episode: u64,
+    how: &Revalidation,
+    score: &mut Scorer<'_>,
 ) -> anyhow::Result<Option<(Validation, PathBuf)>> {
     let path = run_dir.join("metrics.jsonl");
     let mut text = std::fs::read_to_string(&path)
@@ -198,7 +209,13 @@ pub fn chosen_snapshot(
             }
         }
     });
-    let found = choose(rule, on_disk, decay_end_episode);
+    let found = if rule == Select::RevalidatedReturn {
+        let on_disk: Vec<Validation> = on_disk.collect();
+        crate::revalidation::choose(run_dir, &on_disk, decay_end_episode, how, score)?
+            .map(|(v, _)| v)
+    } else {
+        choose(rule, on_disk, decay_end_episode)
+    };
     Ok(found.map(|v| {
         let p = snapshot_path(run_dir, v.rl_episodes);
         (v, p)
@@ -206,8 +223,19 @@ pub fn chosen_snapshot(
 }
 
 /// The policy file of a run directory: its `checkpoints/latest.ckpt`, or the validation
-/// snapshot its `train.select` chooses (`rule` overrides the run's own).
+/// snapshot its `train.select` chooses (`rule` overrides the run's own); `revalidated-return`
+/// re-validates on every core with progress on stderr
+/// ([`crate::revalidation::evaluate_snapshot`]), or reuses the run's `revalidation.jsonl`.
 pub fn run_policy(run_dir: &Path, rule: Option<Select>) -> anyhow::Result<PathBuf> {
+    run_policy_with(run_dir, rule, &mut crate::revalidation::evaluate_snapshot)
+}
+
+/// [`run_policy`], re-validating (`revalidated-return`) with `score`.
+pub fn run_policy_with(
+    run_dir: &Path,
+    rule: Option<Select>,
+    score: &mut Scorer<'_>,
+) -> anyhow::Result<PathBuf> {
     let latest = run_dir.join("checkpoints").join("latest.ckpt");
     let config = RunFile::load(&run_dir.join("config.toml")).ok();
     let rule = rule
@@ -216,8 +244,11 @@ pub fn run_policy(run_dir: &Path, rule: Option<Select>) -> anyhow::Result<PathBu
     if rule == Select::Last {
         return Ok(latest);
     }
-    let decay_end = config.map_or(0, |c| c.train.rl.epsilon_decay_episodes);
-    match chosen_snapshot(run_dir, rule, decay_end)? {
+    let decay_end = config
+        .as_ref()
+        .map_or(0, |c| c.train.rl.epsilon_decay_episodes);
+    let how = config.map(|c| c.train.revalidation).unwrap_or_default();
+    match chosen_snapshot(run_dir, rule, decay_end, &how, score)? {
         Some((v, path)) => {
             eprintln!(
                 "{}: train.select = \"{}\": the snapshot after {} RL episodes (validation success {:.2}, collision {:.2}, Disc. {})",
@@ -240,11 +271,11 @@ pub fn run_policy(run_dir: &Path, rule: Option<Select>) -> anyhow::Result<PathBu
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
 
     /// A real (loadable) snapshot file: a fresh SARL network's model.
-    fn snapshot(path: &Path) {
+    pub(crate) fn snapshot(path: &Path) {
         use std::sync::OnceLock;
         static BYTES: OnceLock<Vec<u8>> = OnceLock::new();
         let bytes = BYTES.get_or_init(|| {

@@ -77,7 +77,8 @@ impl Method {
     }
 
     /// The training config this method runs with: `base`, with `fsrl-plan`'s decision-time
-    /// planning and snapshot choice (`best-return`, Experiment 27) when `base` asks for no
+    /// planning and snapshot choice (`revalidated-return`: Experiment 27's `best-return`,
+    /// re-validated, issue 54) when `base` asks for no
     /// planning (`train.planning_top_k = 0`); a config that sets its own planning keeps it and
     /// its own choice. Every other method: `base` unchanged.
     pub fn train_config(self, base: &TrainConfig) -> TrainConfig {
@@ -86,7 +87,7 @@ impl Method {
             cfg.planning_top_k = FSRL_PLAN_TOP_K;
             cfg.planning_breadth = FSRL_PLAN_BREADTH;
             cfg.planning_in_training = false;
-            cfg.select = Select::BestReturn;
+            cfg.select = Select::RevalidatedReturn;
         }
         cfg
     }
@@ -372,6 +373,49 @@ pub struct TrainConfig {
     /// validation snapshot with the best success (`docs/REPRODUCTION.md`, Experiment 5) or the
     /// gentlest good one (default, Experiment 11).
     pub select: Select,
+    /// How [`Select::RevalidatedReturn`] re-validates its candidates (`[train.revalidation]`).
+    /// Not written when default, so the configs, checkpoints and model files of runs that
+    /// never re-validate keep their bytes.
+    #[serde(skip_serializing_if = "Revalidation::is_default")]
+    pub revalidation: Revalidation,
+}
+
+/// How [`Select::RevalidatedReturn`] chooses (`[train.revalidation]`): the `top` snapshots by
+/// validation mean return after the ε decay, and the last weights, each scored again on
+/// `episodes` validation episodes of the run's setting, seeds `seed_start..`. Those seeds are
+/// neither the validation seeds the candidates were picked on (0..99 by default: a fresh draw,
+/// so a snapshot's lucky validation does not carry over), nor the test seeds (1000..1499), nor
+/// the unseen seeds 20000.. (issue 54's measurements), nor training seeds (top bit set).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct Revalidation {
+    /// Candidates besides the last weights: the best snapshots by validation mean return.
+    pub top: usize,
+    /// Validation episodes per candidate.
+    pub episodes: u32,
+    /// First re-validation seed.
+    pub seed_start: u64,
+}
+
+impl Default for Revalidation {
+    fn default() -> Self {
+        Self {
+            top: 4,
+            episodes: 300,
+            seed_start: 10_000,
+        }
+    }
+}
+
+impl Revalidation {
+    fn is_default(&self) -> bool {
+        *self == Self::default()
+    }
+
+    /// The seeds of one candidate's re-validation.
+    pub fn seeds(&self) -> std::ops::Range<u64> {
+        self.seed_start..self.seed_start.saturating_add(self.episodes as u64)
+    }
 }
 
 /// Which weights of a run are its trained policy (`train.select`).
@@ -395,20 +439,28 @@ pub enum Select {
     /// decay (ties: the later); without one, as `BestValidation` (Experiment 27). Keeps every
     /// validation's weights, validation seeds only.
     BestReturn,
+    /// `BestReturn` without its winner's curse (issue 54): the [`Revalidation::top`] snapshots
+    /// with the highest validation mean return after the ε decay, and the last weights, are
+    /// each scored again on [`Revalidation::episodes`] fresh validation episodes (seeds
+    /// [`Revalidation::seed_start`]..); the highest mean return there is the policy (ties: the
+    /// later). Keeps every validation's weights; validation seeds only, never the test seeds.
+    RevalidatedReturn,
 }
 
 impl Select {
     /// What a distributed `fsrl train` and `fsrl reproduce` choose by when the config does not
     /// say (Experiments 26–27: `low-disc` picks the adaptive runs' timid snapshot after the ε
-    /// decay); `--single-process` keeps [`TrainConfig`]'s default, `low-disc`, bit for bit.
-    pub const DISTRIBUTED_DEFAULT: Select = Select::BestReturn;
+    /// decay; issue 54: `best-return` alone picks a lucky validation); `--single-process` keeps
+    /// [`TrainConfig`]'s default, `low-disc`, bit for bit.
+    pub const DISTRIBUTED_DEFAULT: Select = Select::RevalidatedReturn;
 
     /// Every rule, in the order the docs list them.
-    pub const ALL: [Select; 4] = [
+    pub const ALL: [Select; 5] = [
         Select::Last,
         Select::BestValidation,
         Select::LowDisc,
         Select::BestReturn,
+        Select::RevalidatedReturn,
     ];
 }
 
@@ -424,6 +476,7 @@ impl Select {
             Select::BestValidation => "best-validation",
             Select::LowDisc => "low-disc",
             Select::BestReturn => "best-return",
+            Select::RevalidatedReturn => "revalidated-return",
         }
     }
 }
@@ -451,6 +504,7 @@ impl Default for TrainConfig {
             validation_episodes: 100,
             validation_seed_start: 0,
             select: Select::LowDisc,
+            revalidation: Revalidation::default(),
         }
     }
 }
@@ -580,6 +634,29 @@ impl TrainConfig {
             p.push(format!(
                 "train.validation seeds {v0}..{v1} overlap the test seeds {t0}..{t1}: validation must not see test episodes"
             ));
+        }
+        if self.select == Select::RevalidatedReturn {
+            let r = self.revalidation;
+            if r.top == 0 || r.episodes == 0 {
+                p.push(format!(
+                    "train.select = \"revalidated-return\" needs train.revalidation.top and train.revalidation.episodes of at least 1, got {} and {}",
+                    r.top, r.episodes
+                ));
+            }
+            let seeds = r.seeds();
+            let overlaps = |a: &std::ops::Range<u64>| seeds.start < a.end && a.start < seeds.end;
+            if overlaps(&(t0..t1)) {
+                p.push(format!(
+                    "train.revalidation seeds {}..{} overlap the test seeds {t0}..{t1}: the choice must not see test episodes",
+                    seeds.start, seeds.end
+                ));
+            }
+            if overlaps(&(v0..v1)) {
+                p.push(format!(
+                    "train.revalidation seeds {}..{} overlap the validation seeds {v0}..{v1}: re-validation must be a fresh draw",
+                    seeds.start, seeds.end
+                ));
+            }
         }
         p
     }
@@ -762,7 +839,7 @@ mod tests {
             (t.planning_top_k, t.planning_breadth, t.planning_in_training),
             (FSRL_PLAN_TOP_K, FSRL_PLAN_BREADTH, false)
         );
-        assert_eq!(t.select, Select::BestReturn);
+        assert_eq!(t.select, Select::RevalidatedReturn);
         assert!(t.problems().is_empty());
         let mut own = base.clone();
         own.planning_top_k = 3;
@@ -862,6 +939,52 @@ mod tests {
                 .unwrap();
             assert_eq!(parsed, rule);
         }
+    }
+
+    /// `revalidated-return` re-validates on seeds of its own: never the test seeds, never the
+    /// validation seeds it picked its candidates on, and at least one candidate and episode.
+    #[test]
+    fn revalidation_seeds_are_a_fresh_draw_clear_of_the_test_seeds() {
+        let mut c = TrainConfig {
+            select: Select::RevalidatedReturn,
+            ..TrainConfig::default()
+        };
+        assert!(c.problems().is_empty(), "{:?}", c.problems());
+        assert_eq!(c.revalidation.seeds(), 10_000..10_300);
+        // Not written when default: the paper's configs and model files keep their bytes.
+        let text = toml::to_string(&TrainConfig::default()).unwrap();
+        assert!(!text.contains("revalidation"), "{text}");
+        c.revalidation.seed_start = 1200;
+        let p = c.problems();
+        assert!(
+            p.len() == 1 && p[0].contains("overlap the test seeds 1000..1500"),
+            "{p:?}"
+        );
+        c.revalidation.seed_start = 50;
+        let p = c.problems();
+        assert!(
+            p.len() == 1 && p[0].contains("overlap the validation seeds 0..100"),
+            "{p:?}"
+        );
+        c.revalidation = Revalidation {
+            top: 0,
+            ..Revalidation::default()
+        };
+        let p = c.problems();
+        assert!(
+            p.len() == 1 && p[0].contains("train.revalidation.top"),
+            "{p:?}"
+        );
+        let text = toml::to_string(&c).unwrap();
+        assert!(
+            text.contains("[revalidation]") && text.contains("top = 0"),
+            "{text}"
+        );
+        let back: TrainConfig = toml::from_str(&text).unwrap();
+        assert_eq!(back, c);
+        // Another rule does not care where re-validation would go.
+        c.select = Select::BestReturn;
+        assert!(c.problems().is_empty());
     }
 }
 
