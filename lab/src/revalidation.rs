@@ -137,7 +137,8 @@ fn append(run_dir: &Path, line: &Revalidated) -> anyhow::Result<()> {
         .with_context(|| format!("cannot append to {}", path.display()))
 }
 
-/// Scores one snapshot on the re-validation seeds: `(path, how, candidate k of n)`.
+/// Scores one snapshot on the re-validation seeds: `(path, how, k, n)`, the `k`-th (from 0) of
+/// the `n` candidates this choice scores (the others' lines were in `revalidation.jsonl`).
 pub type Scorer<'a> = dyn FnMut(&Path, &Revalidation, usize, usize) -> anyhow::Result<Scores> + 'a;
 
 /// [`Select::RevalidatedReturn`](policy::method::Select::RevalidatedReturn)'s choice among the
@@ -159,8 +160,10 @@ pub fn choose(
     }
     let last_episode = on_disk.iter().map(|v| v.rl_episodes).max();
     let known = read(run_dir);
-    let mut results = Vec::with_capacity(cands.len());
-    for (k, v) in cands.iter().enumerate() {
+    // Each candidate's line from an earlier re-validation of the same weights on the same
+    // seeds, or `None`: to be scored.
+    let mut results: Vec<(PathBuf, String, Option<Revalidated>)> = Vec::new();
+    for v in &cands {
         let path = snapshot_path(run_dir, v.rl_episodes);
         let sha256 = crate::policy_file::file_sha256(&path)?;
         let reuse = known.iter().rev().find(|r| {
@@ -169,30 +172,34 @@ pub fn choose(
                 && r.seed_start == how.seed_start
                 && r.episodes == how.episodes
         });
-        let line = match reuse {
-            Some(r) => r.clone(),
-            None => {
-                let t0 = Instant::now();
-                let scores = score(&path, how, k, cands.len())
-                    .with_context(|| format!("re-validating {}", path.display()))?;
-                let line = Revalidated {
-                    snapshot: file_name(&path),
-                    rl_episodes: v.rl_episodes,
-                    sha256,
-                    seed_start: how.seed_start,
-                    episodes: how.episodes,
-                    last: Some(v.rl_episodes) == last_episode,
-                    validation_mean_return: v.mean_return,
-                    scores,
-                    wall_s: t0.elapsed().as_secs_f64(),
-                    threads: threads(),
-                };
-                append(run_dir, &line)?;
-                line
-            }
-        };
-        results.push(line);
+        results.push((path, sha256, reuse.cloned()));
     }
+    let missing = results.iter().filter(|r| r.2.is_none()).count();
+    let mut k = 0;
+    for ((path, sha256, line), v) in results.iter_mut().zip(&cands) {
+        if line.is_some() {
+            continue;
+        }
+        let t0 = Instant::now();
+        let scores = score(path, how, k, missing)
+            .with_context(|| format!("re-validating {}", path.display()))?;
+        k += 1;
+        let new = Revalidated {
+            snapshot: file_name(path),
+            rl_episodes: v.rl_episodes,
+            sha256: sha256.clone(),
+            seed_start: how.seed_start,
+            episodes: how.episodes,
+            last: Some(v.rl_episodes) == last_episode,
+            validation_mean_return: v.mean_return,
+            scores,
+            wall_s: t0.elapsed().as_secs_f64(),
+            threads: threads(),
+        };
+        append(run_dir, &new)?;
+        *line = Some(new);
+    }
+    let results: Vec<Revalidated> = results.into_iter().filter_map(|r| r.2).collect();
     let Some(top) = best_revalidated(&results).cloned() else {
         return Ok(None);
     };
@@ -234,7 +241,7 @@ pub fn evaluate_snapshot(
     let seeds = how.seeds();
     if k == 0 {
         eprintln!(
-            "train.select = \"revalidated-return\": re-validating {n} candidate snapshots on {} validation episodes each (seeds {}..{}, {} threads), into {FILE}",
+            "train.select = \"revalidated-return\": re-validating {n} candidate snapshot(s) on {} validation episodes each (seeds {}..{}, {} threads), into {FILE}",
             how.episodes,
             seeds.start,
             seeds.end,
