@@ -232,8 +232,12 @@ impl Resolved {
             RatioSource::File | RatioSource::Default => "the run's config".to_string(),
         };
         train.rl.replay_ratio = ratio;
-        let resumed = started.map(|f| f.train.select);
+        let resumed = started.as_ref().map(|f| f.train.select);
         train.select = select_rule(self.method, train, choice, Mode::Distributed, resumed);
+        if let Some(f) = &started {
+            // A resumed run re-validates as it was started to (its `[train.revalidation]`).
+            train.revalidation = f.train.revalidation;
+        }
         check_train(train, &whence)?;
         if !evaluator && train.select != Select::Last {
             // Without the evaluator nothing is validated and no snapshot is kept.
@@ -357,7 +361,8 @@ pub enum Mode {
 /// The snapshot-selection rule (`[train] select`) of a run of `method`; every command asks
 /// here. In order: a resumed run keeps its own (`resumed`: the rule in its `config.toml` or
 /// checkpoint); else the file's own choice (`file_choice`: the file said `[train] select`);
-/// else the method's preset (`Method::train_config`: `fsrl-plan` chooses by `best-return`);
+/// else the method's preset (`Method::train_config`: `fsrl-plan` chooses by
+/// `revalidated-return`);
 /// else the mode's default: [`Select::DISTRIBUTED_DEFAULT`] for processes (Experiments 26–27),
 /// `TrainConfig`'s own for one process. `base` is the file's `[train]`, with or without the
 /// method's preset (applying it twice changes nothing). (A distributed run without its
@@ -519,7 +524,7 @@ mod tests {
         );
         let text = toml::to_string(&r.file).unwrap();
         assert!(
-            text.contains("planning_top_k = 8") && text.contains("select = \"best-return\""),
+            text.contains("planning_top_k = 8") && text.contains("select = \"revalidated-return\""),
             "{text}"
         );
         c.train.planning_top_k = 3;
@@ -573,7 +578,7 @@ mod tests {
         Ok(r.file.train)
     }
 
-    /// A distributed run chooses by `best-return` unless its config (or its method) chooses,
+    /// A distributed run chooses by `revalidated-return` (`Select::DISTRIBUTED_DEFAULT`) unless its config (or its method) chooses,
     /// and a resumed run by the rule it was started with (Experiments 26–27); one process by
     /// `TrainConfig`'s own unless the file or the method chooses.
     #[test]
@@ -586,7 +591,7 @@ mod tests {
                 .select
         };
         assert_eq!(select(None, "fsrl", false), Select::DISTRIBUTED_DEFAULT);
-        assert_eq!(Select::DISTRIBUTED_DEFAULT, Select::BestReturn);
+        assert_eq!(Select::DISTRIBUTED_DEFAULT, Select::RevalidatedReturn);
         assert_eq!(resolved(None, "fsrl").file.train.select, Select::LowDisc);
         let cfg = dir.path().join("c.toml");
         std::fs::write(&cfg, "[train]\nselect = \"low-disc\"\n").unwrap();
@@ -598,15 +603,23 @@ mod tests {
             "the file's own choice stays"
         );
         assert_eq!(resolved(c, "fsrl-plan").file.train.select, Select::LowDisc);
-        assert_eq!(select(None, "fsrl-plan", false), Select::BestReturn);
+        assert_eq!(select(None, "fsrl-plan", false), Select::RevalidatedReturn);
         assert_eq!(
             resolved(None, "fsrl-plan").file.train.select,
-            Select::BestReturn
+            Select::RevalidatedReturn
         );
         // A run started with low-disc resumes with it.
         std::fs::create_dir_all(&out).unwrap();
         std::fs::copy(&cfg, out.join("config.toml")).unwrap();
         assert_eq!(select(None, "fsrl", true), Select::LowDisc);
+        // A run started with best-return (before issue 54) keeps it, for both methods.
+        std::fs::write(
+            out.join("config.toml"),
+            "[train]\nselect = \"best-return\"\n",
+        )
+        .unwrap();
+        assert_eq!(select(None, "fsrl", true), Select::BestReturn);
+        assert_eq!(select(None, "fsrl-plan", true), Select::BestReturn);
         // Without the evaluator: its last weights.
         let mut r = resolved(c, "fsrl");
         r.for_processes(&out, false, None, false).unwrap();

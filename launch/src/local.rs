@@ -721,7 +721,30 @@ fn final_report(run: &mut Prepared, mut w: Watched, started: Instant) -> anyhow:
     timing.add_s("final_evaluation_s", final_start.elapsed().as_secs_f64());
     timing.add_s("total_s", started.elapsed().as_secs_f64());
     use_final_figures(out, &mut w.last_values)?;
-    let summary = distributed_summary(&w.last_values, &mut timing);
+    let mut summary = distributed_summary(&w.last_values, &mut timing);
+    let train = &launch.resolved.file.train;
+    if train.select == policy::method::Select::RevalidatedReturn {
+        // Which snapshots were re-validated, what they scored and which is the policy (the
+        // final evaluation's choice: every candidate is in revalidation.jsonl by now).
+        let chosen = lab::select::chosen_snapshot(
+            out,
+            train.select,
+            train.rl.epsilon_decay_episodes,
+            &train.revalidation,
+            &mut |p, _, _, _| {
+                anyhow::bail!(
+                    "{} was not re-validated by the final evaluation",
+                    p.display()
+                )
+            },
+        )
+        .ok()
+        .flatten()
+        .map(|(_, path)| path);
+        let (lines, revalidation_s) = lab::revalidation::summary(out, chosen.as_deref());
+        summary += &lines;
+        timing.set("revalidation_s", revalidation_s);
+    }
     timing.write(out)?;
     let report = out.join("report.md");
     if let Ok(mut md) = std::fs::read_to_string(&report) {
