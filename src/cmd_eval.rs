@@ -24,8 +24,9 @@ pub struct EvalArgs {
     /// directories of `fsrl train` (their checkpoints/latest.ckpt, or the validation snapshot
     /// their `train.select` chooses); a file's kind is read from its first bytes.
     pub inputs: Vec<PathBuf>,
-    /// Which weights of a run directory: last, best-validation, low-disc or best-return [default: the run's
-    /// train.select].
+    /// Which weights of a run directory: last, best-validation, low-disc, best-return or
+    /// revalidated-return (the best validation returns scored again on fresh validation seeds,
+    /// kept in the run's revalidation.jsonl) [default: the run's train.select].
     #[arg(long, value_parser = parse_select)]
     pub select: Option<Select>,
     /// Also evaluate the ORCA baseline.
@@ -73,7 +74,10 @@ pub fn parse_select(s: &str) -> Result<Select, String> {
     Select::ALL
         .into_iter()
         .find(|r| r.name() == s)
-        .ok_or_else(|| format!("{s:?}: not one of last, best-validation, low-disc, best-return"))
+        .ok_or_else(|| {
+            let names: Vec<&str> = Select::ALL.iter().map(|r| r.name()).collect();
+            format!("{s:?}: not one of {}", names.join(", "))
+        })
 }
 
 pub fn progress(len: u64, what: &str) -> ProgressBar {

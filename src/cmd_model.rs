@@ -19,8 +19,9 @@ pub struct ExportArgs {
     /// snapshot its `train.select` chooses), a checkpoint, or a model file (its check is
     /// recorded again).
     pub input: PathBuf,
-    /// Which weights of a run directory: last, best-validation, low-disc or best-return [default: the run's
-    /// train.select].
+    /// Which weights of a run directory: last, best-validation, low-disc, best-return or
+    /// revalidated-return (the best validation returns scored again on fresh validation seeds,
+    /// kept in the run's revalidation.jsonl) [default: the run's train.select].
     #[arg(long, value_parser = crate::cmd_eval::parse_select)]
     pub select: Option<policy::method::Select>,
     /// The model file to write (conventionally models/<method>-<setting>-s<seed>.fsrlm).

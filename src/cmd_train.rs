@@ -30,7 +30,12 @@ pub struct TrainArgs {
     /// Continue the run in --out from its last checkpoint.
     #[arg(long)]
     pub resume: bool,
-    /// Train in this one process instead of learner + actors + evaluator processes.
+    /// Train in this one process instead of learner + actors + evaluator processes. The run's
+    /// policy (`[train] select`, unless the config or a resumed run says): distributed,
+    /// `revalidated-return` (the 4 best validation returns after the ε decay and the last
+    /// weights, scored again on 300 fresh validation episodes, recorded in revalidation.jsonl);
+    /// one process, `low-disc`, as the shipped models of the paper's methods (`fsrl-plan`:
+    /// `revalidated-return` in both modes)
     #[arg(long)]
     pub single_process: bool,
     /// Actor processes (multi-process mode)
