@@ -386,9 +386,12 @@ fn the_same_seed_gives_the_same_episode() {
     }
 }
 
+/// A change that makes a config invalid.
+type Spoil = fn(&mut SimConfig);
+
 #[test]
 fn bad_values_are_refused_with_their_message() {
-    let cases: [(&str, fn(&mut SimConfig)); 9] = [
+    let cases: [(&str, Spoil); 9] = [
         ("humans.visible_prob must be a probability in [0, 1], got 1.5", |c| {
             c.humans.visible_prob = 1.5
         }),
