@@ -563,3 +563,189 @@ fn a_live_page_port_in_use_is_refused_before_anything_starts() {
     );
     assert!(!out.join("logs").exists(), "processes were started");
 }
+
+/// Issue 54: a default distributed run (no `[train] select`) chooses by `revalidated-return`:
+/// its candidates (the best validation returns after the ε decay, and the last weights) are each
+/// scored again on the re-validation seeds, every result is a line of `revalidation.jsonl`, the
+/// policy is the best re-validated return (ties: the later), the report lists them, and an
+/// export reuses the file, re-validating only what an interruption left out.
+#[test]
+fn a_default_distributed_run_chooses_by_the_revalidated_return() {
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = dir.path().join("reval.toml");
+    std::fs::write(
+        &cfg,
+        "[train]\nvalidation_every_episodes = 2\nvalidation_episodes = 10\n\
+         [train.rl]\nepsilon_decay_episodes = 0\n\
+         [train.revalidation]\ntop = 2\nepisodes = 6\n",
+    )
+    .unwrap();
+    let out = dir.path().join("run");
+    let o = fsrl()
+        .args(["train", "--method", "sarl", "--setting", "env2-visible"])
+        .args(["--actors", "1", "--il-episodes", "8", "--il-epochs", "2"])
+        .args(["--eval-episodes", "4", "--rl-episodes", "6", "--config"])
+        .arg(&cfg)
+        .arg("--out")
+        .arg(&out)
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{stderr}");
+    let config = std::fs::read_to_string(out.join("config.toml")).unwrap();
+    assert!(
+        config.contains("select = \"revalidated-return\""),
+        "{config}"
+    );
+    // The candidates, worked out here from the validations: the 2 best returns (ties: the
+    // later) and the last weights.
+    // One per RL episode count: the later line of a repeated validation.
+    let validations: std::collections::BTreeMap<u64, f64> =
+        std::fs::read_to_string(out.join("metrics.jsonl"))
+            .unwrap()
+            .lines()
+            .map(|l| serde_json::from_str::<serde_json::Value>(l).unwrap())
+            .filter(|v| v["phase"] == "validation")
+            .map(|v| {
+                (
+                    v["episode"].as_u64().unwrap(),
+                    v["mean_return"].as_f64().unwrap(),
+                )
+            })
+            .collect();
+    let mut ranked: Vec<(u64, f64)> = validations.clone().into_iter().collect();
+    ranked.sort_by(|a, b| b.1.total_cmp(&a.1).then(b.0.cmp(&a.0)));
+    let mut candidates: Vec<u64> = ranked.iter().take(2).map(|v| v.0).collect();
+    let last = *validations.keys().max().unwrap();
+    candidates.push(last);
+    candidates.sort();
+    candidates.dedup();
+    assert!(candidates.len() >= 2, "{validations:?}");
+    let read = || -> Vec<serde_json::Value> {
+        std::fs::read_to_string(out.join("revalidation.jsonl"))
+            .unwrap()
+            .lines()
+            .filter_map(|l| serde_json::from_str(l).ok())
+            .collect()
+    };
+    let lines = read();
+    let scored: Vec<u64> = lines
+        .iter()
+        .map(|l| l["rl_episodes"].as_u64().unwrap())
+        .collect();
+    assert_eq!(scored, candidates, "{lines:?}");
+    for l in &lines {
+        assert_eq!(
+            (l["seed_start"].as_u64(), l["episodes"].as_u64()),
+            (Some(10_000), Some(6))
+        );
+        assert_eq!(l["last"].as_bool(), Some(l["rl_episodes"] == last));
+    }
+    let best = lines
+        .iter()
+        .max_by(|a, b| {
+            let key = |l: &serde_json::Value| {
+                (
+                    l["mean_return"].as_f64().unwrap(),
+                    l["rl_episodes"].as_u64().unwrap(),
+                )
+            };
+            key(a).partial_cmp(&key(b)).unwrap()
+        })
+        .unwrap();
+    let chosen = best["rl_episodes"].as_u64().unwrap();
+    assert!(
+        stderr.contains(&format!(
+            "train.select = \"revalidated-return\": the snapshot after {chosen} RL episodes"
+        )),
+        "the final evaluation uses the best re-validated snapshot ({chosen}): {stderr}"
+    );
+    // The line's figures are the snapshot's on the re-validation seeds.
+    let eval_dir = dir.path().join("eval");
+    let o = fsrl()
+        .arg("eval")
+        .arg(out.join(format!("checkpoints/validation/ep-{chosen:06}.fsrlm")))
+        .args([
+            "--settings",
+            "env2-visible",
+            "--episodes",
+            "6",
+            "--seed-start",
+            "10000",
+        ])
+        .arg("--out")
+        .arg(&eval_dir)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let eval: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(eval_dir.join("eval.json")).unwrap())
+            .unwrap();
+    let r = eval["subjects"][0]["settings"][0]["mean_return"]
+        .as_f64()
+        .unwrap();
+    assert!(
+        (r - best["mean_return"].as_f64().unwrap()).abs() < 1e-9,
+        "{r} {best}"
+    );
+    let report = std::fs::read_to_string(out.join("report.md")).unwrap();
+    assert!(
+        report.contains(&format!(
+            "{} candidates × 6 validation episodes (seeds 10000..10005)",
+            candidates.len()
+        )) && report.contains("← the policy"),
+        "{report}"
+    );
+    let run: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("run.json")).unwrap()).unwrap();
+    assert!(run["revalidation_s"].as_f64().unwrap() > 0.0, "{run}");
+    // export-model reuses the file: the same choice, nothing re-validated.
+    let before = std::fs::read(out.join("revalidation.jsonl")).unwrap();
+    let export = || {
+        let o = fsrl()
+            .arg("export-model")
+            .arg(&out)
+            .arg("--out")
+            .arg(dir.path().join("m.fsrlm"))
+            .args(["--check-episodes", "1"])
+            .output()
+            .unwrap();
+        let stdout = String::from_utf8_lossy(&o.stdout).into_owned();
+        let stderr = String::from_utf8_lossy(&o.stderr).into_owned();
+        assert!(o.status.success(), "{stderr}");
+        assert!(
+            stdout.contains(&format!(", {chosen} RL episodes,"))
+                && stdout.contains("chosen by train.select = \"revalidated-return\""),
+            "{stdout}"
+        );
+        stderr
+    };
+    let said = export();
+    assert!(!said.contains("re-validating"), "{said}");
+    assert_eq!(
+        std::fs::read(out.join("revalidation.jsonl")).unwrap(),
+        before
+    );
+    // Interrupted during the re-validation: the first line and half of the second were
+    // written. The export re-validates the rest only, and chooses the same.
+    let text = String::from_utf8(before).unwrap();
+    let kept: Vec<&str> = text.lines().collect();
+    std::fs::write(
+        out.join("revalidation.jsonl"),
+        format!("{}\n{}", kept[0], &kept[1][..kept[1].len() / 2]),
+    )
+    .unwrap();
+    let said = export();
+    assert!(
+        said.contains(&format!(
+            "re-validating {} candidate snapshot(s)",
+            candidates.len() - 1
+        )),
+        "{said}"
+    );
+    let again: Vec<u64> = read()
+        .iter()
+        .map(|l| l["rl_episodes"].as_u64().unwrap())
+        .collect();
+    assert_eq!(again.len(), candidates.len(), "{again:?}");
+}

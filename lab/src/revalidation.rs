@@ -154,6 +154,14 @@ pub fn choose(
     how: &Revalidation,
     score: &mut Scorer<'_>,
 ) -> anyhow::Result<Option<(Validation, Option<Revalidated>)>> {
+    if how.top == 0 || how.episodes == 0 {
+        anyhow::bail!(
+            "{}: train.revalidation needs top and episodes of at least 1, got {} and {}",
+            run_dir.display(),
+            how.top,
+            how.episodes
+        );
+    }
     let cands = candidates(on_disk, decay_end, how.top);
     if cands.len() <= 1 {
         return Ok(cands.into_iter().next().map(|v| (v, None)));
@@ -244,7 +252,7 @@ pub fn evaluate_snapshot(
             "train.select = \"revalidated-return\": re-validating {n} candidate snapshot(s) on {} validation episodes each (seeds {}..{}, {} threads), into {FILE}",
             how.episodes,
             seeds.start,
-            seeds.end,
+            seeds.end - 1,
             threads()
         );
     }
@@ -332,7 +340,7 @@ pub fn summary(run_dir: &Path, chosen: Option<&Path>) -> (String, f64) {
     let mut s = format!(
         "- re-validation (train.select = \"revalidated-return\"): {} candidates × {episodes} validation episodes (seeds {seed_start}..{}) in {wall:.0} s\n",
         latest.len(),
-        seed_start + episodes as u64
+        (seed_start + episodes as u64).saturating_sub(1)
     );
     for r in latest.values() {
         let mark = if chosen_name.as_deref() == Some(r.snapshot.as_str()) {
@@ -607,7 +615,7 @@ mod tests {
         );
         let (md, _) = summary(run, Some(&chosen));
         assert!(
-            md.contains("2 candidates × 7 validation episodes (seeds 5000..5007)"),
+            md.contains("2 candidates × 7 validation episodes (seeds 5000..5006)"),
             "{md}"
         );
         assert!(
