@@ -1,9 +1,9 @@
 //! `train.select = "revalidated-return"` (issue 54): `best-return` without its winner's curse.
 //! The best of ~20 validations of 100 episodes is partly luck: a run's snapshot after 2004 RL
 //! episodes read 0.98 on its validation and tested 0.912, while later snapshots tested 0.98. So
-//! the [`Revalidation::top`] snapshots by validation mean return after the ε decay, and the last
-//! weights, are scored again on [`Revalidation::episodes`] fresh validation episodes (seeds
-//! [`Revalidation::seed_start`].., never the validation seeds they were picked on, never the test
+//! the [`Plan::top`] snapshots by validation mean return after the ε decay, and the last
+//! weights, are scored again on [`Plan::episodes`] fresh validation episodes (seeds
+//! [`Plan::seed_start`].., never the validation seeds they were picked on, never the test
 //! seeds), and the highest mean return there is the run's policy (ties: the later).
 //!
 //! Every candidate's result is a line of the run's `revalidation.jsonl`, appended and synced as
@@ -17,13 +17,39 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::Context;
-use policy::method::Revalidation;
+use policy::method::TrainConfig;
 use serde::{Deserialize, Serialize};
 
 use crate::select::{best, snapshot_path, Validation};
 
 /// The file of a run directory that records every re-validation.
 pub const FILE: &str = "revalidation.jsonl";
+
+/// One re-validation as a run's `[train]` resolves it (`train.revalidation`,
+/// `policy::method::Revalidation`): how many candidates besides the last weights, how many
+/// episodes each, from which seed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Plan {
+    pub top: usize,
+    pub episodes: u32,
+    pub seed_start: u64,
+}
+
+impl Plan {
+    pub fn of(train: &TrainConfig) -> Self {
+        let r = &train.revalidation;
+        Self {
+            top: r.top,
+            episodes: r.episodes_of(train.validation_episodes),
+            seed_start: r.seed_start,
+        }
+    }
+
+    /// The seeds of one candidate's re-validation.
+    pub fn seeds(&self) -> std::ops::Range<u64> {
+        self.seed_start..self.seed_start.saturating_add(self.episodes as u64)
+    }
+}
 
 /// What one candidate scored on the re-validation seeds.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -139,7 +165,7 @@ fn append(run_dir: &Path, line: &Revalidated) -> anyhow::Result<()> {
 
 /// Scores one snapshot on the re-validation seeds: `(path, how, k, n)`, the `k`-th (from 0) of
 /// the `n` candidates this choice scores (the others' lines were in `revalidation.jsonl`).
-pub type Scorer<'a> = dyn FnMut(&Path, &Revalidation, usize, usize) -> anyhow::Result<Scores> + 'a;
+pub type Scorer<'a> = dyn FnMut(&Path, &Plan, usize, usize) -> anyhow::Result<Scores> + 'a;
 
 /// [`Select::RevalidatedReturn`](policy::method::Select::RevalidatedReturn)'s choice among the
 /// validations of `run_dir` whose snapshot loads (`on_disk`): re-validates the [`candidates`]
@@ -151,7 +177,7 @@ pub fn choose(
     run_dir: &Path,
     on_disk: &[Validation],
     decay_end: u64,
-    how: &Revalidation,
+    how: &Plan,
     score: &mut Scorer<'_>,
 ) -> anyhow::Result<Option<(Validation, Option<Revalidated>)>> {
     if how.top == 0 || how.episodes == 0 {
@@ -232,12 +258,7 @@ pub fn threads() -> usize {
 /// greedy policy, in its own simulator and lookahead configuration, on the re-validation seeds
 /// of its own setting, on every core (`crate::evaluation`'s evaluation), with progress on
 /// stderr (a counter on a terminal, a line every 10 s otherwise) and a line per result.
-pub fn evaluate_snapshot(
-    path: &Path,
-    how: &Revalidation,
-    k: usize,
-    n: usize,
-) -> anyhow::Result<Scores> {
+pub fn evaluate_snapshot(path: &Path, how: &Plan, k: usize, n: usize) -> anyhow::Result<Scores> {
     use std::io::IsTerminal;
     use std::sync::atomic::{AtomicU32, Ordering};
     use std::sync::Mutex;
@@ -388,6 +409,20 @@ mod tests {
         }
     }
 
+    /// The default's: 4 candidates besides the last weights, 300 episodes from seed 10000.
+    fn default_plan() -> Plan {
+        let p = Plan::of(&TrainConfig::default());
+        assert_eq!(
+            p,
+            Plan {
+                top: 4,
+                episodes: 300,
+                seed_start: 10_000
+            }
+        );
+        p
+    }
+
     fn scores(ret: f64) -> Scores {
         Scores {
             success_rate: 0.9,
@@ -448,7 +483,7 @@ mod tests {
         // What 300 fresh episodes say of each.
         let truth = BTreeMap::from([(2000, 0.85), (2500, 0.90), (3000, 0.93), (3500, 0.93)]);
         let calls = std::cell::RefCell::new(Vec::new());
-        let mut score = |p: &Path, how: &Revalidation, _k: usize, n: usize| {
+        let mut score = |p: &Path, how: &Plan, _k: usize, n: usize| {
             assert_eq!((how.episodes, n), (300, 3));
             let ep = all
                 .iter()
@@ -458,9 +493,9 @@ mod tests {
             calls.borrow_mut().push(ep);
             Ok(scores(truth[&ep]))
         };
-        let how = Revalidation {
+        let how = Plan {
             top: 2,
-            ..Revalidation::default()
+            ..default_plan()
         };
         // Candidates 2000 and 3000 (top 2) and 3500 (the last weights); 3000 and 3500 tie at
         // 0.93: the later.
@@ -477,7 +512,7 @@ mod tests {
         // Without the tie, the re-validated best that was not the last.
         let truth2 = BTreeMap::from([(2000, 0.85), (3000, 0.95), (3500, 0.90)]);
         let fresh = tempfile::tempdir().unwrap();
-        let mut other = |p: &Path, _: &Revalidation, _: usize, _: usize| {
+        let mut other = |p: &Path, _: &Plan, _: usize, _: usize| {
             let ep = all
                 .iter()
                 .find(|x| snapshot_path(fresh.path(), x.rl_episodes) == p)
@@ -494,15 +529,14 @@ mod tests {
             .unwrap();
         assert_eq!(chosen.rl_episodes, 3000);
         // Again on the first run: nothing scored again, the same choice.
-        let mut never =
-            |_: &Path, _: &Revalidation, _: usize, _: usize| -> anyhow::Result<Scores> {
-                panic!("re-validated again although revalidation.jsonl has every candidate")
-            };
+        let mut never = |_: &Path, _: &Plan, _: usize, _: usize| -> anyhow::Result<Scores> {
+            panic!("re-validated again although revalidation.jsonl has every candidate")
+        };
         let (again, _) = choose(run, &all, 2000, &how, &mut never).unwrap().unwrap();
         assert_eq!(again.rl_episodes, 3500);
         assert_eq!(read(run).len(), 3);
         // Other seeds or episodes are another re-validation: scored again.
-        let more = Revalidation {
+        let more = Plan {
             episodes: 500,
             ..how
         };
@@ -525,9 +559,9 @@ mod tests {
         for x in &all {
             snapshot(&snapshot_path(run, x.rl_episodes));
         }
-        let how = Revalidation::default();
+        let how = default_plan();
         let scored = std::cell::RefCell::new(Vec::new());
-        let mut score = |p: &Path, _: &Revalidation, _: usize, _: usize| {
+        let mut score = |p: &Path, _: &Plan, _: usize, _: usize| {
             let ep = all
                 .iter()
                 .find(|x| snapshot_path(run, x.rl_episodes) == p)
@@ -597,7 +631,7 @@ mod tests {
         }
         std::fs::write(snapshot_path(run, 200), b"damaged").unwrap();
         let seen = std::cell::RefCell::new(Vec::new());
-        let mut score = |p: &Path, how: &Revalidation, _: usize, _: usize| {
+        let mut score = |p: &Path, how: &Plan, _: usize, _: usize| {
             assert_eq!((how.top, how.episodes, how.seed_start), (2, 7, 5000));
             seen.borrow_mut().push(p.to_path_buf());
             // The last weights re-validate better.
@@ -624,10 +658,9 @@ mod tests {
             "{md}"
         );
         // Another rule on the same run re-validates nothing.
-        let mut never =
-            |_: &Path, _: &Revalidation, _: usize, _: usize| -> anyhow::Result<Scores> {
-                panic!("best-return re-validated")
-            };
+        let mut never = |_: &Path, _: &Plan, _: usize, _: usize| -> anyhow::Result<Scores> {
+            panic!("best-return re-validated")
+        };
         assert_eq!(
             run_policy_with(run, Some(Select::BestReturn), &mut never).unwrap(),
             snapshot_path(run, 300)

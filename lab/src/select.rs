@@ -13,9 +13,9 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context};
-use policy::method::{Revalidation, Select, LOW_DISC_MIN_SUCCESS};
+use policy::method::{Select, LOW_DISC_MIN_SUCCESS};
 
-use crate::revalidation::Scorer;
+use crate::revalidation::{Plan, Scorer};
 use crate::run::RunFile;
 
 pub use learner::model::{snapshot_dir, snapshot_path};
@@ -176,7 +176,7 @@ pub fn chosen_snapshot(
     run_dir: &Path,
     rule: Select,
     decay_end_episode: u64,
-    how: &Revalidation,
+    how: &Plan,
     score: &mut Scorer<'_>,
 ) -> anyhow::Result<Option<(Validation, PathBuf)>> {
     let path = run_dir.join("metrics.jsonl");
@@ -247,7 +247,7 @@ pub fn run_policy_with(
     let decay_end = config
         .as_ref()
         .map_or(0, |c| c.train.rl.epsilon_decay_episodes);
-    let how = config.map(|c| c.train.revalidation).unwrap_or_default();
+    let how = Plan::of(&config.map(|c| c.train).unwrap_or_default());
     match chosen_snapshot(run_dir, rule, decay_end, &how, score)? {
         Some((v, path)) => {
             eprintln!(

@@ -730,7 +730,7 @@ fn final_report(run: &mut Prepared, mut w: Watched, started: Instant) -> anyhow:
             out,
             train.select,
             train.rl.epsilon_decay_episodes,
-            &train.revalidation,
+            &lab::revalidation::Plan::of(train),
             &mut |p, _, _, _| {
                 anyhow::bail!(
                     "{} was not re-validated by the final evaluation",

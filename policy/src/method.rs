@@ -382,7 +382,8 @@ pub struct TrainConfig {
 
 /// How [`Select::RevalidatedReturn`] chooses (`[train.revalidation]`): the `top` snapshots by
 /// validation mean return after the ε decay, and the last weights, each scored again on
-/// `episodes` validation episodes of the run's setting, seeds `seed_start..`. Those seeds are
+/// [`Revalidation::episodes_of`] validation episodes of the run's setting (3 × a validation's
+/// unless `episodes` says: 300 by default), seeds `seed_start..`. Those seeds are
 /// neither the validation seeds the candidates were picked on (0..99 by default: a fresh draw,
 /// so a snapshot's lucky validation does not carry over), nor the test seeds (1000..1499), nor
 /// the unseen seeds 20000.. (issue 54's measurements), nor training seeds (top bit set).
@@ -391,17 +392,23 @@ pub struct TrainConfig {
 pub struct Revalidation {
     /// Candidates besides the last weights: the best snapshots by validation mean return.
     pub top: usize,
-    /// Validation episodes per candidate.
-    pub episodes: u32,
+    /// Validation episodes per candidate; `None`: [`REVALIDATION_FACTOR`] × the validation's
+    /// (`train.validation_episodes`), so a short test run re-validates briefly too.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub episodes: Option<u32>,
     /// First re-validation seed.
     pub seed_start: u64,
 }
+
+/// [`Revalidation::episodes`] by default: a candidate is re-validated on this many times the
+/// episodes of a validation (300 for the default 100).
+pub const REVALIDATION_FACTOR: u32 = 3;
 
 impl Default for Revalidation {
     fn default() -> Self {
         Self {
             top: 4,
-            episodes: 300,
+            episodes: None,
             seed_start: 10_000,
         }
     }
@@ -412,9 +419,17 @@ impl Revalidation {
         *self == Self::default()
     }
 
-    /// The seeds of one candidate's re-validation.
-    pub fn seeds(&self) -> std::ops::Range<u64> {
-        self.seed_start..self.seed_start.saturating_add(self.episodes as u64)
+    /// Episodes per candidate in a run whose validations have `validation_episodes`.
+    pub fn episodes_of(&self, validation_episodes: u32) -> u32 {
+        self.episodes
+            .unwrap_or(validation_episodes.saturating_mul(REVALIDATION_FACTOR))
+    }
+
+    /// The seeds of one candidate's re-validation in a run whose validations have
+    /// `validation_episodes`.
+    pub fn seeds(&self, validation_episodes: u32) -> std::ops::Range<u64> {
+        let n = self.episodes_of(validation_episodes) as u64;
+        self.seed_start..self.seed_start.saturating_add(n)
     }
 }
 
@@ -441,7 +456,7 @@ pub enum Select {
     BestReturn,
     /// `BestReturn` without its winner's curse (issue 54): the [`Revalidation::top`] snapshots
     /// with the highest validation mean return after the ε decay, and the last weights, are
-    /// each scored again on [`Revalidation::episodes`] fresh validation episodes (seeds
+    /// each scored again on [`Revalidation::episodes_of`] fresh validation episodes (seeds
     /// [`Revalidation::seed_start`]..); the highest mean return there is the policy (ties: the
     /// later). Keeps every validation's weights; validation seeds only, never the test seeds.
     RevalidatedReturn,
@@ -637,13 +652,14 @@ impl TrainConfig {
         }
         if self.select == Select::RevalidatedReturn {
             let r = self.revalidation;
-            if r.top == 0 || r.episodes == 0 {
+            let episodes = r.episodes_of(self.validation_episodes);
+            if r.top == 0 || episodes == 0 {
                 p.push(format!(
-                    "train.select = \"revalidated-return\" needs train.revalidation.top and train.revalidation.episodes of at least 1, got {} and {}",
-                    r.top, r.episodes
+                    "train.select = \"revalidated-return\" needs train.revalidation.top and train.revalidation.episodes of at least 1, got {} and {episodes}",
+                    r.top
                 ));
             }
-            let seeds = r.seeds();
+            let seeds = r.seeds(self.validation_episodes);
             let overlaps = |a: &std::ops::Range<u64>| seeds.start < a.end && a.start < seeds.end;
             if overlaps(&(t0..t1)) {
                 p.push(format!(
@@ -950,7 +966,14 @@ mod tests {
             ..TrainConfig::default()
         };
         assert!(c.problems().is_empty(), "{:?}", c.problems());
-        assert_eq!(c.revalidation.seeds(), 10_000..10_300);
+        assert_eq!(c.revalidation.seeds(c.validation_episodes), 10_000..10_300);
+        // 3 × a validation's episodes unless it says.
+        assert_eq!(c.revalidation.episodes_of(10), 30);
+        let own = Revalidation {
+            episodes: Some(7),
+            ..Revalidation::default()
+        };
+        assert_eq!((own.episodes_of(10), own.seeds(10)), (7, 10_000..10_007));
         // Not written when default: the paper's configs and model files keep their bytes.
         let text = toml::to_string(&TrainConfig::default()).unwrap();
         assert!(!text.contains("revalidation"), "{text}");
