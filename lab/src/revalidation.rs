@@ -88,9 +88,10 @@ pub struct Revalidated {
 /// The candidates of a re-validation among `on_disk` (validations whose snapshot loads): the
 /// `top` validations with the highest mean return at or after `decay_end` RL episodes (ties:
 /// the later), and the last weights (the latest validation: both training modes validate when
-/// RL ends, so in a finished run it is the final network). Without a validation that has a
-/// return after the decay (old logs), [`best`] stands in for the top ones. In RL-episode order,
-/// each once.
+/// RL ends, so in a finished run it is the final network). In RL-episode order, each once.
+/// Without a validation that has a return after the decay (a run shorter than its ε decay, as
+/// short test runs are, or an old log) there is no plateau to choose within: the one candidate
+/// is [`best`]'s, as `best-return` chooses then, and nothing is re-validated.
 pub fn candidates(on_disk: &[Validation], decay_end: u64, top: usize) -> Vec<Validation> {
     let mut ranked: Vec<&Validation> = on_disk
         .iter()
@@ -105,7 +106,7 @@ pub fn candidates(on_disk: &[Validation], decay_end: u64, top: usize) -> Vec<Val
     });
     let mut out: Vec<Validation> = ranked.into_iter().take(top).cloned().collect();
     if out.is_empty() {
-        out.extend(best(on_disk.iter().cloned()));
+        return best(on_disk.iter().cloned()).into_iter().collect();
     }
     if let Some(last) = on_disk.iter().max_by_key(|v| v.rl_episodes) {
         out.push(last.clone());
@@ -455,7 +456,7 @@ mod tests {
         );
         // The last weights among the top: once.
         assert_eq!(eps(candidates(&all[..6], 2000, 2)), [2000, 3000]);
-        // Old logs without returns: the best success stands in.
+        // Old logs without returns, or a run shorter than its decay: the best success alone.
         let old: Vec<Validation> = all
             .iter()
             .map(|x| Validation {
@@ -464,7 +465,8 @@ mod tests {
                 ..x.clone()
             })
             .collect();
-        assert_eq!(eps(candidates(&old, 2000, 4)), [2250, 3250]);
+        assert_eq!(eps(candidates(&old, 2000, 4)), [2250]);
+        assert_eq!(eps(candidates(&all, 4000, 4)), [1000]);
         assert!(candidates(&[], 0, 4).is_empty());
     }
 
