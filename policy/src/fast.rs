@@ -11,7 +11,9 @@
 
 use crate::batch::StateBatch;
 use crate::config::{Linear, LstmIndex, Mat, SarlIndex};
-use crate::kernels::{dot, gemm, relu_inplace, Threads, View};
+use crate::kernels::{
+    dense_packed, dot, gemm, packed_kernels, relu_inplace, PackedMat, Threads, View,
+};
 use crate::{FEATURE_DIM, ROBOT_DIM};
 
 /// Reusable buffers for [`crate::ValueNet::values_into`]; also keeps the last attention weights.
@@ -35,6 +37,49 @@ impl Scratch {
     }
 }
 
+/// SARL's weight matrices packed for [`dense_packed`] (built once per set of weights, where
+/// [`packed_kernels`] holds): every layer with at least two outputs and 3..=512 inputs, and
+/// both halves of the first attention layer.
+#[derive(Clone, Debug)]
+pub(crate) struct PackedSarl {
+    mats: Vec<(Mat, PackedMat)>,
+}
+
+impl PackedSarl {
+    /// `None` where the packed kernels do not run.
+    pub fn new(ix: &SarlIndex, p: &[f32]) -> Option<Self> {
+        if !packed_kernels() {
+            return None;
+        }
+        let d_e = ix.mlp1.last()?.out_dim();
+        let att0 = ix.attention.first()?;
+        let halves = [att0.w.cols(0, d_e), att0.w.cols(d_e, 2 * d_e)];
+        let layers = ix
+            .mlp1
+            .iter()
+            .chain(&ix.attention[1..])
+            .chain(&ix.mlp2)
+            .chain(&ix.mlp3)
+            .map(|l| l.w)
+            .chain(halves);
+        let mats = layers
+            .filter(|w| w.rows >= 2 && (3..=512).contains(&w.cols))
+            .map(|w| (w, PackedMat::new(&p[w.offset..], w.ld, w.rows, w.cols)))
+            .collect();
+        Some(PackedSarl { mats })
+    }
+
+    /// Whether no layer was packed.
+    #[cfg(test)]
+    pub fn is_empty(&self) -> bool {
+        self.mats.is_empty()
+    }
+
+    fn get(&self, w: Mat) -> Option<&PackedMat> {
+        self.mats.iter().find(|(m, _)| *m == w).map(|(_, pm)| pm)
+    }
+}
+
 /// `c (m × w.rows, dense) += a (m × w.cols, row stride lda) · wᵀ`, `w` read from `params`.
 fn gemm_acc(m: usize, a: &[f32], lda: usize, w: Mat, params: &[f32], c: &mut [f32]) {
     let wt = View::transposed(&params[w.offset..], w.ld);
@@ -51,7 +96,18 @@ fn gemm_acc(m: usize, a: &[f32], lda: usize, w: Mat, params: &[f32], c: &mut [f3
     );
 }
 
-/// `out (rows × lin.out) = act(x Wᵀ + b)`, `x` rows of stride `ldx`.
+/// `out` resized to `len` without writing it when it already has that length (the packed
+/// kernels overwrite every value).
+fn sized(out: &mut Vec<f32>, len: usize) {
+    if out.len() != len {
+        out.clear();
+        out.resize(len, 0.0);
+    }
+}
+
+/// `out (rows × lin.out) = act(x Wᵀ + b)`, `x` rows of stride `ldx`; through the packed
+/// kernels when `packed` holds the layer (the same values bit for bit).
+#[allow(clippy::too_many_arguments)]
 fn dense(
     x: &[f32],
     rows: usize,
@@ -60,9 +116,15 @@ fn dense(
     p: &[f32],
     relu: bool,
     out: &mut Vec<f32>,
+    packed: Option<&PackedSarl>,
 ) {
     let n = lin.out_dim();
     let bias = &p[lin.b.offset..lin.b.offset + n];
+    if let Some(pw) = packed.and_then(|pk| pk.get(lin.w)) {
+        sized(out, rows * n);
+        dense_packed(rows, x, ldx, pw, bias, usize::MAX, relu, out);
+        return;
+    }
     out.clear();
     if n == 1 {
         let w = &p[lin.w.offset..lin.w.offset + lin.w.cols];
@@ -109,6 +171,7 @@ pub(crate) fn softmax_shift(scores: &[f32]) -> Option<f32> {
 
 /// Runs an MLP chain on `x`, each layer into `bufs[k]`; ReLU after every layer except the last
 /// unless `last_relu`. Returns the output width.
+#[allow(clippy::too_many_arguments)]
 fn mlp_chain(
     x: &[f32],
     rows: usize,
@@ -117,6 +180,7 @@ fn mlp_chain(
     p: &[f32],
     last_relu: bool,
     bufs: &mut [Vec<f32>],
+    packed: Option<&PackedSarl>,
 ) -> usize {
     let mut width = ldx;
     for (k, lin) in layers.iter().enumerate() {
@@ -124,19 +188,22 @@ fn mlp_chain(
         let (done, rest) = bufs.split_at_mut(k);
         let input: &[f32] = if k == 0 { x } else { &done[k - 1] };
         let ld = if k == 0 { ldx } else { width };
-        dense(input, rows, ld, lin, p, relu, &mut rest[0]);
+        dense(input, rows, ld, lin, p, relu, &mut rest[0], packed);
         width = lin.out_dim();
     }
     width
 }
 
 /// SARL forward: `values (B)` for `states (B, N, 13)`; attention weights land in `scratch`.
+/// With `packed` (the weights of `p` packed), the per-row layers run through the packed
+/// kernels; without, through `gemm` (the reference path); the values are the same bit for bit.
 pub(crate) fn sarl_forward(
     ix: &SarlIndex,
     p: &[f32],
     states: StateBatch<'_>,
     scratch: &mut Scratch,
     out: &mut [f32],
+    packed: Option<&PackedSarl>,
 ) {
     let (b, n, rows) = (states.batch(), states.humans(), states.rows());
     let (n1, n2, na, n3) = (
@@ -156,7 +223,16 @@ pub(crate) fn sarl_forward(
     let (pool_b, mlp3_b) = rest.split_at_mut(3);
 
     // e = mlp1(x), ReLU after every layer.
-    let d_e = mlp1_chain_out(states.data(), rows, &ix.mlp1, p, mlp1_b);
+    let d_e = mlp_chain(
+        states.data(),
+        rows,
+        FEATURE_DIM,
+        &ix.mlp1,
+        p,
+        true,
+        mlp1_b,
+        packed,
+    );
     let e: &[f32] = &mlp1_b[n1 - 1];
 
     // ē per sample, then g = ē W_Rᵀ + b (the mean half of attention layer 0).
@@ -183,10 +259,66 @@ pub(crate) fn sarl_forward(
         w: att0.w.cols(d_e, 2 * d_e),
         b: att0.b,
     };
-    dense(mean, b, d_e, &half, p, false, g);
+    dense(mean, b, d_e, &half, p, false, g, packed);
 
     // Attention layer 0 on the e half, plus g of the row's sample; then the other layers.
     let a0 = &mut att_b[0];
+    let e_half = att0.w.cols(0, d_e);
+    if let Some(pw) = packed.and_then(|pk| pk.get(e_half)) {
+        // g of row r's sample is row r / n of g; the ReLU in the same pass.
+        sized(a0, rows * d_a0);
+        dense_packed(rows, e, d_e, pw, g, n, na > 1, a0);
+    } else {
+        attention_e_half(e, g, rows, n, d_e, att0, e_half, p, na > 1, a0);
+    }
+    if na > 1 {
+        let (first, others) = att_b.split_at_mut(1);
+        mlp_chain(
+            &first[0],
+            rows,
+            d_a0,
+            &ix.attention[1..],
+            p,
+            false,
+            others,
+            packed,
+        );
+    }
+    let scores: &[f32] = &att_b[na - 1];
+    softmax_pool_and_head(
+        ix,
+        p,
+        states,
+        e,
+        d_e,
+        scores,
+        &mut attention,
+        mlp2_b,
+        pool_b,
+        mlp3_b,
+        out,
+        packed,
+    );
+    scratch.attention = attention;
+}
+
+/// The reference path of attention layer 0's `e` half: `a0 = act(g[sample] + e W_Lᵀ)` with
+/// `g` copied to every row of its sample, then `gemm` (or a dot product for one output).
+#[allow(clippy::too_many_arguments)]
+fn attention_e_half(
+    e: &[f32],
+    g: &[f32],
+    rows: usize,
+    n: usize,
+    d_e: usize,
+    att0: &Linear,
+    e_half: Mat,
+    p: &[f32],
+    relu: bool,
+    a0: &mut Vec<f32>,
+) {
+    let d_a0 = att0.out_dim();
+    let b = rows / n;
     a0.clear();
     for s in 0..b {
         for _ in 0..n {
@@ -199,15 +331,32 @@ pub(crate) fn sarl_forward(
             *v += dot(&e[r * d_e..(r + 1) * d_e], w);
         }
     } else {
-        gemm_acc(rows, e, d_e, att0.w.cols(0, d_e), p, a0);
+        gemm_acc(rows, e, d_e, e_half, p, a0);
     }
-    if na > 1 {
+    if relu {
         relu_inplace(a0);
-        let (first, others) = att_b.split_at_mut(1);
-        mlp_chain(&first[0], rows, d_a0, &ix.attention[1..], p, false, others);
     }
-    let scores: &[f32] = &att_b[na - 1];
+}
 
+/// Masked softmax of `scores` into `attention`, `z = mlp2(e)` without its last layer, the
+/// attention-weighted sum, mlp2's last layer and the value head into `out`.
+#[allow(clippy::too_many_arguments)]
+fn softmax_pool_and_head(
+    ix: &SarlIndex,
+    p: &[f32],
+    states: StateBatch<'_>,
+    e: &[f32],
+    d_e: usize,
+    scores: &[f32],
+    attention: &mut Vec<f32>,
+    mlp2_b: &mut [Vec<f32>],
+    pool_b: &mut [Vec<f32>],
+    mlp3_b: &mut [Vec<f32>],
+    out: &mut [f32],
+    packed: Option<&PackedSarl>,
+) {
+    let (b, n, rows) = (states.batch(), states.humans(), states.rows());
+    let (n2, n3) = (ix.mlp2.len(), ix.mlp3.len());
     // Masked softmax over each sample's humans.
     attention.clear();
     attention.resize(b * n, 0.0);
@@ -220,7 +369,7 @@ pub(crate) fn sarl_forward(
 
     // z = mlp2 without its last layer (ReLU after each); pooled = Σ_i w_i z_i.
     let (z, d_z): (&[f32], usize) = if n2 > 1 {
-        let d = mlp_chain(e, rows, d_e, &ix.mlp2[..n2 - 1], p, true, mlp2_b);
+        let d = mlp_chain(e, rows, d_e, &ix.mlp2[..n2 - 1], p, true, mlp2_b, packed);
         (&mlp2_b[n2 - 2], d)
     } else {
         (e, d_e)
@@ -242,7 +391,7 @@ pub(crate) fn sarl_forward(
     }
     // h = pooled W2ᵀ + b (mlp2's last layer, no ReLU).
     let last2 = &ix.mlp2[n2 - 1];
-    dense(pooled, b, d_z, last2, p, false, hbuf);
+    dense(pooled, b, d_z, last2, p, false, hbuf, packed);
     let d_h = last2.out_dim();
 
     // Value head on [robot | h].
@@ -252,19 +401,8 @@ pub(crate) fn sarl_forward(
         head.extend_from_slice(states.robot(s));
         head.extend_from_slice(&hbuf[s * d_h..(s + 1) * d_h]);
     }
-    mlp_chain(head, b, d_in, &ix.mlp3, p, false, mlp3_b);
+    mlp_chain(head, b, d_in, &ix.mlp3, p, false, mlp3_b, packed);
     out.copy_from_slice(&mlp3_b[n3 - 1][..b]);
-    scratch.attention = attention;
-}
-
-fn mlp1_chain_out(
-    x: &[f32],
-    rows: usize,
-    layers: &[Linear],
-    p: &[f32],
-    bufs: &mut [Vec<f32>],
-) -> usize {
-    mlp_chain(x, rows, FEATURE_DIM, layers, p, true, bufs)
 }
 
 /// `e^x` as a straight-line polynomial, so that a loop over a slice of it vectorises: Cephes'
@@ -394,7 +532,7 @@ pub(crate) fn lstm_forward(
         head.extend_from_slice(states.robot(s));
         head.extend_from_slice(&h[s * hd..(s + 1) * hd]);
     }
-    mlp_chain(head, b, d_in, &ix.mlp, p, false, mlp_b);
+    mlp_chain(head, b, d_in, &ix.mlp, p, false, mlp_b, None);
     out.copy_from_slice(&mlp_b[nm - 1][..b]);
 }
 

@@ -139,3 +139,350 @@ pub(crate) fn add_column_sums(g: &[f32], n: usize, out: &mut [f32]) {
         }
     }
 }
+
+/// Output features per chunk of [`PackedMat`]: three 16-lane vectors.
+const CHUNK: usize = 48;
+/// Rows per register tile of [`dense_packed`] (8 rows × 3 vectors = 24 accumulators of the 32
+/// AVX-512 registers, so that none spills).
+const TILE_ROWS: usize = 8;
+/// Rows per block: a block's inputs stay in cache while every chunk of features runs over it.
+const ROW_BLOCK: usize = 96;
+
+/// A weight matrix `w (n × k)` (row `f` holds output feature `f`'s weights) packed once for
+/// [`dense_packed`]: chunks of [`CHUNK`] features, each stored `k × width` (feature fastest,
+/// zero-padded to the chunk's vector width: 48, 32 or 16, or 8 for a last chunk of ≤ 8).
+#[derive(Clone, Debug)]
+pub(crate) struct PackedMat {
+    n: usize,
+    k: usize,
+    data: Vec<f32>,
+}
+
+/// The stored width of a chunk of `w` features.
+fn stored_width(w: usize) -> usize {
+    if w <= 8 {
+        8
+    } else {
+        w.div_ceil(16) * 16
+    }
+}
+
+impl PackedMat {
+    /// Packs `w`: `n` rows of `k` weights, row `f` at `data[f · ld..]`.
+    pub fn new(data: &[f32], ld: usize, n: usize, k: usize) -> Self {
+        assert!(
+            n > 0 && k > 0 && (n - 1) * ld + k <= data.len(),
+            "pack: too short"
+        );
+        let mut out = Vec::new();
+        for f0 in (0..n).step_by(CHUNK) {
+            let w = CHUNK.min(n - f0);
+            let sw = stored_width(w);
+            for kk in 0..k {
+                out.extend((0..sw).map(|j| if j < w { data[(f0 + j) * ld + kk] } else { 0.0 }));
+            }
+        }
+        PackedMat { n, k, data: out }
+    }
+}
+
+/// Whether [`dense_packed`] runs here (AVX-512F/VL with FMA). Elsewhere the callers use
+/// [`gemm`], whose results these equal bit for bit (see [`dense_packed`]).
+pub(crate) fn packed_kernels() -> bool {
+    #[cfg(target_arch = "x86_64")]
+    {
+        std::arch::is_x86_feature_detected!("avx512f")
+            && std::arch::is_x86_feature_detected!("avx512vl")
+            && std::arch::is_x86_feature_detected!("fma")
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    false
+}
+
+/// `out[r][f] = act(init[r / group][f] + Σ_k a[r][k] · w[f][k])` for `m` rows (`a` of row
+/// stride `lda`, `out` dense `m × n`; `group = usize::MAX` for one bias row). Only where
+/// [`packed_kernels`] holds (panics otherwise).
+///
+/// Bit for bit what [`gemm`] (the `gemm` crate's FMA kernels) computes for `init` copied into
+/// `out` and accumulated into, followed by [`relu_inplace`]: for `k ≤ 512` the crate sums each
+/// element in one pass, `acc = 0; acc = fma(w, a, acc)` for `k` ascending, then `out + acc`;
+/// this kernel does exactly that per element, only with larger register tiles, the weights
+/// packed once instead of per call, and the bias and ReLU in the same pass
+/// (`fast::tests::packed_kernels_equal_gemm_bit_for_bit`). So `k` must be in `3..=512` (below 3
+/// the crate takes another path).
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn dense_packed(
+    m: usize,
+    a: &[f32],
+    lda: usize,
+    w: &PackedMat,
+    init: &[f32],
+    group: usize,
+    relu: bool,
+    out: &mut [f32],
+) {
+    let (n, k) = (w.n, w.k);
+    assert!(
+        (3..=512).contains(&k),
+        "dense_packed: k = {k} outside 3..=512"
+    );
+    assert!(packed_kernels(), "dense_packed: no AVX-512 here");
+    if m == 0 {
+        return;
+    }
+    assert!(
+        lda >= k && a.len() >= (m - 1) * lda + k,
+        "dense_packed: input too short"
+    );
+    assert!(group > 0, "dense_packed: group 0");
+    assert!(
+        init.len() >= ((m - 1) / group + 1) * n,
+        "dense_packed: init too short"
+    );
+    assert!(out.len() >= m * n, "dense_packed: output too short");
+    // SAFETY: the features were detected above; the asserts keep every read of `a` (rows
+    // < m, columns < k), `init` (row (m−1)/group at most, columns < n) and write of `out`
+    // (m × n) in bounds; `w.data` holds every chunk at its stored width for all k.
+    #[cfg(target_arch = "x86_64")]
+    unsafe {
+        avx512::dense(
+            m,
+            a.as_ptr(),
+            lda,
+            w,
+            init.as_ptr(),
+            group,
+            relu,
+            out.as_mut_ptr(),
+        );
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+mod avx512 {
+    // The functions below are unsafe for their raw pointers and target features: callers
+    // check both (`super::dense_packed`); their bodies are one unsafe block each.
+    #![allow(unsafe_op_in_unsafe_fn)]
+    use super::{stored_width, PackedMat, CHUNK, ROW_BLOCK, TILE_ROWS};
+    use std::arch::x86_64::*;
+
+    /// See [`super::dense_packed`]; the caller checked the features and bounds.
+    #[target_feature(enable = "avx512f,avx512vl,fma")]
+    #[allow(clippy::too_many_arguments)]
+    pub(super) unsafe fn dense(
+        m: usize,
+        a: *const f32,
+        lda: usize,
+        w: &PackedMat,
+        init: *const f32,
+        group: usize,
+        relu: bool,
+        out: *mut f32,
+    ) {
+        let (n, k) = (w.n, w.k);
+        for rb in (0..m).step_by(ROW_BLOCK) {
+            let rb_end = (rb + ROW_BLOCK).min(m);
+            let mut off = 0;
+            for f0 in (0..n).step_by(CHUNK) {
+                let width = CHUNK.min(n - f0);
+                let sw = stored_width(width);
+                let wp = w.data.as_ptr().add(off);
+                for r0 in (rb..rb_end).step_by(TILE_ROWS) {
+                    let t = Tile {
+                        k,
+                        a,
+                        lda,
+                        r0,
+                        rows: TILE_ROWS.min(rb_end - r0),
+                        wp,
+                        init,
+                        group,
+                        n,
+                        f0,
+                        width,
+                        relu,
+                        out,
+                    };
+                    match sw {
+                        48 => tile_z::<3>(&t),
+                        32 => tile_z::<2>(&t),
+                        16 => tile_z::<1>(&t),
+                        _ => tile_y(&t),
+                    }
+                }
+                off += sw * k;
+            }
+        }
+    }
+
+    /// One register tile: rows `r0..r0 + rows` (≤ 8) × features `f0..f0 + width`.
+    struct Tile {
+        k: usize,
+        a: *const f32,
+        lda: usize,
+        r0: usize,
+        rows: usize,
+        wp: *const f32,
+        init: *const f32,
+        group: usize,
+        n: usize,
+        f0: usize,
+        width: usize,
+        relu: bool,
+        out: *mut f32,
+    }
+
+    impl Tile {
+        /// Row pointers of the tile's inputs; rows past the end repeat the last row (computed,
+        /// never stored).
+        #[inline(always)]
+        unsafe fn rows(&self) -> [*const f32; TILE_ROWS] {
+            std::array::from_fn(|r| self.a.add((self.r0 + r.min(self.rows - 1)) * self.lda))
+        }
+
+        /// Lanes of vector `v` (of `lanes` each) inside the tile's width, as a mask.
+        #[inline(always)]
+        fn mask(&self, v: usize, lanes: usize) -> u16 {
+            let live = self.width.saturating_sub(v * lanes).min(lanes);
+            if live >= 16 {
+                u16::MAX
+            } else {
+                (1u16 << live) - 1
+            }
+        }
+    }
+
+    /// `NV` 16-lane vectors of features per row.
+    #[target_feature(enable = "avx512f,avx512vl,fma")]
+    #[inline]
+    unsafe fn tile_z<const NV: usize>(t: &Tile) {
+        let ap = t.rows();
+        let mut acc = [[_mm512_setzero_ps(); NV]; TILE_ROWS];
+        let stride = NV * 16;
+        for kk in 0..t.k {
+            let wrow = t.wp.add(kk * stride);
+            let wv: [__m512; NV] = std::array::from_fn(|v| _mm512_loadu_ps(wrow.add(v * 16)));
+            for r in 0..TILE_ROWS {
+                let b = _mm512_set1_ps(*ap[r].add(kk));
+                for v in 0..NV {
+                    acc[r][v] = _mm512_fmadd_ps(wv[v], b, acc[r][v]);
+                }
+            }
+        }
+        let zero = _mm512_setzero_ps();
+        for (r, acc) in acc.iter().enumerate().take(t.rows) {
+            let row = t.r0 + r;
+            let ip = t.init.add((row / t.group) * t.n + t.f0);
+            let op = t.out.add(row * t.n + t.f0);
+            for (v, &acc) in acc.iter().enumerate() {
+                let mask = t.mask(v, 16);
+                let c = _mm512_maskz_loadu_ps(mask, ip.add(v * 16));
+                let mut o = _mm512_add_ps(c, acc);
+                if t.relu {
+                    // maxps returns its second operand for NaN and for ±0: as `f32::max(x, 0)`.
+                    o = _mm512_max_ps(o, zero);
+                }
+                _mm512_mask_storeu_ps(op.add(v * 16), mask, o);
+            }
+        }
+    }
+
+    /// One 8-lane vector of features per row (a last chunk of ≤ 8 features).
+    #[target_feature(enable = "avx512f,avx512vl,fma")]
+    #[inline]
+    unsafe fn tile_y(t: &Tile) {
+        let ap = t.rows();
+        let mut acc = [_mm256_setzero_ps(); TILE_ROWS];
+        for kk in 0..t.k {
+            let wv = _mm256_loadu_ps(t.wp.add(kk * 8));
+            for r in 0..TILE_ROWS {
+                let b = _mm256_set1_ps(*ap[r].add(kk));
+                acc[r] = _mm256_fmadd_ps(wv, b, acc[r]);
+            }
+        }
+        let zero = _mm256_setzero_ps();
+        let mask = t.mask(0, 8) as u8;
+        for (r, &acc) in acc.iter().enumerate().take(t.rows) {
+            let row = t.r0 + r;
+            let ip = t.init.add((row / t.group) * t.n + t.f0);
+            let op = t.out.add(row * t.n + t.f0);
+            let c = _mm256_maskz_loadu_ps(mask, ip);
+            let mut o = _mm256_add_ps(c, acc);
+            if t.relu {
+                o = _mm256_max_ps(o, zero);
+            }
+            _mm256_mask_storeu_ps(op, mask, o);
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::{Rng, SeedableRng};
+    use rand_chacha::ChaCha8Rng;
+
+    /// Over shapes around every chunk and tile edge (n from 2 to 150, k from 3 to 160, 1 to 41
+    /// rows, input row strides above k, one bias row or a row per group of rows, ReLU on and
+    /// off), the packed kernel's outputs equal `gemm` after the same initial values (then
+    /// `relu_inplace`) bit for bit. Skipped where the packed kernels do not run.
+    #[test]
+    fn packed_kernel_equals_gemm_bit_for_bit() {
+        if !packed_kernels() {
+            eprintln!("no AVX-512 here: the packed kernels do not run, nothing to compare");
+            return;
+        }
+        let mut rng = ChaCha8Rng::seed_from_u64(54);
+        let mut compared = 0;
+        for &n in &[
+            2, 4, 7, 8, 9, 16, 17, 31, 33, 47, 48, 49, 50, 64, 96, 100, 101, 150,
+        ] {
+            for &k in &[3, 6, 13, 50, 100, 150, 160] {
+                for &m in &[1, 7, 8, 9, 41] {
+                    let lda = k + rng.gen_range(0..3);
+                    let ld = k + rng.gen_range(0..3);
+                    let group = [usize::MAX, 1, 5][rng.gen_range(0..3)];
+                    let relu = rng.gen_bool(0.5);
+                    let mut v = |len: usize, scale: f32| -> Vec<f32> {
+                        (0..len).map(|_| rng.gen_range(-scale..scale)).collect()
+                    };
+                    let a = v(m * lda, 2.0);
+                    let w = v(n * ld, 0.5);
+                    let init_rows = if group == usize::MAX {
+                        1
+                    } else {
+                        (m - 1) / group + 1
+                    };
+                    let init = v(init_rows * n, 1.0);
+                    let mut want: Vec<f32> = (0..m)
+                        .flat_map(|r| {
+                            let i = r / group;
+                            init[i * n..(i + 1) * n].to_vec()
+                        })
+                        .collect();
+                    gemm(
+                        m,
+                        n,
+                        k,
+                        &mut want,
+                        n,
+                        View::rows(&a, lda),
+                        View::transposed(&w, ld),
+                        true,
+                        Threads::One,
+                    );
+                    if relu {
+                        relu_inplace(&mut want);
+                    }
+                    let packed = PackedMat::new(&w, ld, n, k);
+                    let mut got = vec![f32::NAN; m * n];
+                    dense_packed(m, &a, lda, &packed, &init, group, relu, &mut got);
+                    let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+                    assert_eq!(bits(&got), bits(&want), "m {m} n {n} k {k} group {group}");
+                    compared += m * n;
+                }
+            }
+        }
+        assert!(compared > 100_000, "{compared}");
+    }
+}

@@ -1,12 +1,14 @@
 //! [`ValueNet`]: a network description plus its flat parameter vector; its input is a
 //! [`StateBatch`].
 
+use std::sync::OnceLock;
+
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
 use crate::batch::StateBatch;
 use crate::config::{NetConfig, NetIndex, NetKind, ParamLayout};
-use crate::fast::{self, Scratch};
+use crate::fast::{self, PackedSarl, Scratch};
 use crate::{PolicyError, FEATURE_DIM};
 
 /// Fewest rows each thread of [`ValueNet::values_split`] takes (below, one thread is faster).
@@ -23,6 +25,10 @@ pub struct ValueNet {
     layout: ParamLayout,
     index: NetIndex,
     params: Vec<f32>,
+    /// SARL's weights packed for the inference kernels, built on first use; emptied whenever
+    /// the weights may change (`set_params`, `params_mut`). `None` inside: no packed kernels
+    /// here (or LSTM-RL).
+    packed: OnceLock<Option<PackedSarl>>,
 }
 
 impl ValueNet {
@@ -57,6 +63,7 @@ impl ValueNet {
             layout,
             index,
             params,
+            packed: OnceLock::new(),
         }
     }
 
@@ -89,12 +96,24 @@ impl ValueNet {
     pub fn set_params(&mut self, params: &[f32]) -> Result<(), PolicyError> {
         check_params(self.kind(), self.params.len(), params)?;
         self.params.copy_from_slice(params);
+        self.packed = OnceLock::new();
         Ok(())
     }
 
-    /// Mutable access for the optimiser.
+    /// Mutable access for the optimiser (the packed copy is rebuilt on the next inference).
     pub(crate) fn params_mut(&mut self) -> &mut [f32] {
+        self.packed = OnceLock::new();
         &mut self.params
+    }
+
+    /// The packed weights of a SARL network where the packed kernels run.
+    fn packed(&self) -> Option<&PackedSarl> {
+        self.packed
+            .get_or_init(|| match &self.index {
+                NetIndex::Sarl(ix) => PackedSarl::new(ix, &self.params),
+                NetIndex::Lstm(_) => None,
+            })
+            .as_ref()
     }
 
     pub(crate) fn index(&self) -> &NetIndex {
@@ -118,7 +137,24 @@ impl ValueNet {
             "output length must equal the batch size"
         );
         match &self.index {
-            NetIndex::Sarl(ix) => fast::sarl_forward(ix, &self.params, states, scratch, out),
+            NetIndex::Sarl(ix) => {
+                fast::sarl_forward(ix, &self.params, states, scratch, out, self.packed())
+            }
+            NetIndex::Lstm(ix) => fast::lstm_forward(ix, &self.params, states, scratch, out),
+        }
+    }
+
+    /// [`ValueNet::values_into`] through `gemm` alone (no packed kernels): the reference the
+    /// packed kernels equal bit for bit (`tests::packed_values_are_the_reference_ones`).
+    pub(crate) fn values_reference_into(
+        &self,
+        states: StateBatch<'_>,
+        scratch: &mut Scratch,
+        out: &mut [f32],
+    ) {
+        assert_eq!(out.len(), states.batch());
+        match &self.index {
+            NetIndex::Sarl(ix) => fast::sarl_forward(ix, &self.params, states, scratch, out, None),
             NetIndex::Lstm(ix) => fast::lstm_forward(ix, &self.params, states, scratch, out),
         }
     }
@@ -226,5 +262,106 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// The packed kernels change no value: every SARL value through them equals the `gemm`
+    /// reference path's bit for bit, for the paper's sizes and for odd ones (chunk and tile
+    /// remainders, an attention without hidden layer, a one-layer mlp2), on random states of
+    /// 1 to 22 entities and on the lookahead's own candidate batches along ORCA episodes of an
+    /// open setting and of walled ones (people and wall points). Fails when a kernel sums in
+    /// another order. Skipped where the packed kernels do not run.
+    #[test]
+    fn packed_values_are_the_reference_ones() {
+        use crate::joint::{featurize_into, HumanObs, HumanOrder};
+        use crate::SarlConfig;
+        use sim::{Env, RobotState, Setting, SimConfig};
+
+        if !crate::kernels::packed_kernels() {
+            eprintln!("no AVX-512 here: the packed kernels do not run, nothing to compare");
+            return;
+        }
+        let odd = SarlConfig {
+            mlp1_dims: vec![37, 97],
+            mlp2_dims: vec![49],
+            attention_dims: vec![1],
+            mlp3_dims: vec![9, 17, 1],
+        };
+        let deep = SarlConfig {
+            mlp1_dims: vec![150, 100],
+            mlp2_dims: vec![100, 50],
+            attention_dims: vec![100, 33, 1],
+            mlp3_dims: vec![150, 100, 100, 1],
+        };
+        let configs = [
+            NetConfig::sarl(),
+            NetConfig::Sarl(odd),
+            NetConfig::Sarl(deep),
+        ];
+        let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        let mut compared = 0;
+        for (c, config) in configs.into_iter().enumerate() {
+            for seed in 0..3u64 {
+                let net = ValueNet::new(config.clone(), 100 * c as u64 + seed).unwrap();
+                assert!(net.packed().is_some_and(|p| !p.is_empty()));
+                let (mut s1, mut s2) = (Scratch::default(), Scratch::default());
+                let mut check = |data: &[f32], batch: usize, humans: usize| {
+                    let states = StateBatch::new(data, batch, humans).unwrap();
+                    let (mut want, mut got) = (vec![0.0; batch], vec![0.0; batch]);
+                    net.values_reference_into(states, &mut s1, &mut want);
+                    net.values_into(states, &mut s2, &mut got);
+                    assert_eq!(
+                        bits(&got),
+                        bits(&want),
+                        "config {c} seed {seed} {batch}×{humans}"
+                    );
+                    assert_eq!(bits(s2.attention()), bits(s1.attention()));
+                    compared += batch;
+                };
+                // Random states, features of the scale the network meets.
+                let mut rng = ChaCha8Rng::seed_from_u64(seed);
+                for (batch, humans) in [(1, 1), (1, 5), (7, 3), (81, 10), (145, 10), (81, 22)] {
+                    let data: Vec<f32> = (0..batch * humans * FEATURE_DIM)
+                        .map(|_| rng.gen_range(-4.0..4.0))
+                        .collect();
+                    check(&data, batch, humans);
+                }
+                // The lookahead's candidate batches along ORCA episodes.
+                for name in ["env1-invisible", "corridor", "room-visible"] {
+                    let setting: Setting = name.parse().unwrap();
+                    let mut env = Env::new(SimConfig::default(), setting, seed).unwrap();
+                    env.reset(seed).unwrap();
+                    let (mut humans, mut walls) = (Vec::new(), Vec::new());
+                    let (mut batch, mut order) = (Vec::new(), Vec::new());
+                    for _ in 0..12 {
+                        if env.is_done() {
+                            break;
+                        }
+                        env.next_humans(&mut humans);
+                        let mut obs: Vec<HumanObs> = humans.iter().map(HumanObs::from).collect();
+                        walls.clear();
+                        env.static_entities_into(&mut walls);
+                        obs.extend(walls.iter().map(|&p| HumanObs::obstacle(p)));
+                        let goal = env.observed_goal();
+                        batch.clear();
+                        let n_actions = env.action_set().len();
+                        for a in 0..n_actions {
+                            let next = env.preview(a).unwrap().robot_next;
+                            let robot = RobotState { goal, ..next };
+                            featurize_into(
+                                &robot,
+                                &obs,
+                                HumanOrder::AsGiven,
+                                &mut order,
+                                &mut batch,
+                            );
+                        }
+                        check(&batch, n_actions, obs.len());
+                        let action = env.orca_robot_action(0.0);
+                        env.step(action).unwrap();
+                    }
+                }
+            }
+        }
+        assert!(compared > 10_000, "{compared}");
     }
 }

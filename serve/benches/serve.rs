@@ -8,7 +8,13 @@
 //! `FSRL_SERVE_MODEL` names another (e.g. a shipped `fsrl-plan` model, which plans by itself);
 //! its own decision is timed on one thread and on every core (`fsrl serve`'s default).
 //! Among walls: one decision of the shipped corridor model in room scenes with 10 people (issue
-//! 53's bound: 2 ms p99 on two threads); `FSRL_SERVE_BENCH=walls` times those alone.
+//! 53's bound: 2 ms p99 on two threads); `FSRL_SERVE_BENCH=walls` times those alone,
+//! `FSRL_SERVE_BENCH=decisions` the model's own decisions alone (no planning arms, walls or
+//! loopback). `FSRL_SERVE_PEOPLE` lists the crowd sizes (default `5,10,20`; issue 54's bounds:
+//! 1 ms p99 at 10 people and 4 ms at 20, one thread).
+//! Beside wall-clock time each decision's CPU time on its thread is printed (Linux): on a shared
+//! machine a decision preempted half-way costs wall time, not CPU time, so CPU time compares
+//! code under load (issue 54).
 //! `cargo bench --workspace --bench serve`.
 
 use std::path::Path;
@@ -33,6 +39,31 @@ fn model_path() -> std::path::PathBuf {
     )
 }
 const SAMPLES: usize = 400;
+
+/// The calling thread's CPU time in seconds (`CLOCK_THREAD_CPUTIME_ID`), `None` off Linux.
+fn thread_cpu_s() -> Option<f64> {
+    #[cfg(target_os = "linux")]
+    {
+        #[repr(C)]
+        struct Timespec {
+            tv_sec: i64,
+            tv_nsec: i64,
+        }
+        extern "C" {
+            fn clock_gettime(clock: i32, ts: *mut Timespec) -> i32;
+        }
+        const CLOCK_THREAD_CPUTIME_ID: i32 = 3;
+        let mut ts = Timespec {
+            tv_sec: 0,
+            tv_nsec: 0,
+        };
+        // SAFETY: `ts` is a valid, writable timespec (64-bit Linux layout).
+        let rc = unsafe { clock_gettime(CLOCK_THREAD_CPUTIME_ID, &mut ts) };
+        (rc == 0).then(|| ts.tv_sec as f64 + ts.tv_nsec as f64 * 1e-9)
+    }
+    #[cfg(not(target_os = "linux"))]
+    None
+}
 
 fn pct(v: &mut [f64], p: f64) -> f64 {
     v.sort_by(|a, b| a.total_cmp(b));
@@ -75,18 +106,23 @@ fn timed(served: &mut ServedPolicy, states: &[Env], label: &str) -> (f64, f64) {
         served.set_walls(walls.clone());
         served.decide(o).unwrap();
     }
-    let mut ms: Vec<f64> = obs
+    let (mut ms, mut cpu_ms): (Vec<f64>, Vec<f64>) = obs
         .iter()
         .map(|(o, walls)| {
             served.set_walls(walls.clone());
-            let t = Instant::now();
+            let (t, c) = (Instant::now(), thread_cpu_s());
             served.decide(o).unwrap();
-            t.elapsed().as_secs_f64() * 1e3
+            let cpu = thread_cpu_s()
+                .zip(c)
+                .map_or(f64::NAN, |(b, a)| (b - a) * 1e3);
+            (t.elapsed().as_secs_f64() * 1e3, cpu)
         })
-        .collect();
+        .unzip();
     let (p50, p99) = (pct(&mut ms, 0.5), pct(&mut ms, 0.99));
     println!(
-        "{label}: p50 {p50:.3} ms, p99 {p99:.3} ms ({} states)",
+        "{label}: p50 {p50:.3} ms, p99 {p99:.3} ms; CPU time on the thread p50 {:.3} ms, p99 {:.3} ms ({} states)",
+        pct(&mut cpu_ms, 0.5),
+        pct(&mut cpu_ms, 0.99),
         ms.len()
     );
     (p50, p99)
@@ -259,14 +295,24 @@ fn main() {
     let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
     let threads: Vec<usize> = if cores > 1 { vec![1, cores] } else { vec![1] };
     println!("model: {}", model_path().display());
-    // FSRL_SERVE_BENCH=walls: the walled decisions only (profiling them).
-    let only_walls = std::env::var("FSRL_SERVE_BENCH").is_ok_and(|v| v == "walls");
-    for people in [5, 10].into_iter().filter(|_| !only_walls) {
+    // FSRL_SERVE_BENCH=walls: the walled decisions only; =decisions: the model's own only.
+    let arm = std::env::var("FSRL_SERVE_BENCH").unwrap_or_default();
+    let (only_walls, only_own) = (arm == "walls", arm == "decisions");
+    let people: Vec<usize> = std::env::var("FSRL_SERVE_PEOPLE")
+        .unwrap_or_else(|_| "5,10,20".into())
+        .split(',')
+        .map(|p| {
+            p.trim()
+                .parse()
+                .expect("FSRL_SERVE_PEOPLE: comma-separated counts")
+        })
+        .collect();
+    for &people in people.iter().filter(|_| !only_walls) {
         let own = decisions(people, None, 1);
         if cores > 1 {
             decisions(people, None, cores);
         }
-        for &(k, m) in &planning {
+        for &(k, m) in planning.iter().filter(|_| !only_own) {
             for &t in &threads {
                 let arm = decisions(people, Some((k, m)), t);
                 println!(
@@ -277,10 +323,10 @@ fn main() {
             }
         }
     }
-    for t in &threads {
+    for t in threads.iter().filter(|_| !only_own) {
         walled_decisions(*t);
     }
-    for people in [5, 10].into_iter().filter(|_| !only_walls) {
+    for people in [5, 10].into_iter().filter(|_| !only_walls && !only_own) {
         input_to_command(people);
     }
 }
