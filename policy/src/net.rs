@@ -145,8 +145,10 @@ impl ValueNet {
     }
 
     /// [`ValueNet::values_into`] through `gemm` alone (no packed kernels): the reference the
-    /// packed kernels equal bit for bit (`tests::packed_values_are_the_reference_ones`).
-    pub(crate) fn values_reference_into(
+    /// packed kernels equal bit for bit (`tests::packed_values_are_the_reference_ones`); for
+    /// tests and for benches that time both in one run.
+    #[doc(hidden)]
+    pub fn values_reference_into(
         &self,
         states: StateBatch<'_>,
         scratch: &mut Scratch,

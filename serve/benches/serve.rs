@@ -10,7 +10,8 @@
 //! Among walls: one decision of the shipped corridor model in room scenes with 10 people (issue
 //! 53's bound: 2 ms p99 on two threads); `FSRL_SERVE_BENCH=walls` times those alone,
 //! `FSRL_SERVE_BENCH=decisions` the model's own decisions alone (no planning arms, walls or
-//! loopback). `FSRL_SERVE_PEOPLE` lists the crowd sizes (default `5,10,20`; issue 54's bounds:
+//! loopback), `FSRL_SERVE_BENCH=net` the network alone on the lookahead's batches, packed
+//! kernels against the `gemm` reference path in one run (their ratio; issue 54). `FSRL_SERVE_PEOPLE` lists the crowd sizes (default `5,10,20`; issue 54's bounds:
 //! 1 ms p99 at 10 people and 4 ms at 20, one thread).
 //! Beside wall-clock time each decision's CPU time on its thread is printed (Linux): on a shared
 //! machine a decision preempted half-way costs wall time, not CPU time, so CPU time compares
@@ -164,6 +165,80 @@ fn walled_decisions(threads: usize) -> (f64, f64) {
     timed(&mut served, &states, &label)
 }
 
+/// The network alone on the lookahead's batches of the served model's decisions (every
+/// candidate of both levels, `people` humans each): the packed kernels (`values_into`) against
+/// the `gemm` reference path (`values_reference_into`), interleaved decision by decision in one
+/// run; CPU time on the thread, p50 and p99 (ms), and the reference / packed ratio of the sums.
+fn network_arms(people: usize) {
+    let (model, _) = learner::model::load_policy(&model_path()).unwrap();
+    let net = model.net;
+    let (k, m) = (model.train.planning_top_k, model.train.planning_breadth);
+    let candidates = 81 + k * if m == 0 { 81 } else { m };
+    let mut rows = Vec::new();
+    let mut order = Vec::new();
+    let envs = states(people);
+    let batches: Vec<Vec<f32>> = envs
+        .iter()
+        .map(|env| {
+            // The candidates' states: the robot moved on at each action's velocity for one and
+            // for two steps (the second level's shapes; the values do not matter here).
+            let obs: Vec<policy::joint::HumanObs> = env
+                .humans()
+                .iter()
+                .map(policy::joint::HumanObs::from)
+                .collect();
+            rows.clear();
+            let r = *env.robot();
+            let actions = env.action_set();
+            for c in 0..candidates {
+                let a = actions.get(c % actions.len()).unwrap();
+                let v = actions.velocity(r.heading_rad, a);
+                let steps = 1.0 + (c / actions.len()) as f64;
+                let robot = sim::RobotState {
+                    position: r.position + v * (steps * env.config().dt_s),
+                    velocity: v,
+                    ..r
+                };
+                policy::joint::featurize_into(
+                    &robot,
+                    &obs,
+                    policy::joint::HumanOrder::AsGiven,
+                    &mut order,
+                    &mut rows,
+                );
+            }
+            rows.clone()
+        })
+        .collect();
+    let mut scratch = policy::Scratch::default();
+    let mut out = vec![0.0f32; candidates];
+    let (mut packed, mut reference) = (Vec::new(), Vec::new());
+    for (i, data) in batches.iter().enumerate() {
+        let batch = policy::StateBatch::new(data, candidates, people).unwrap();
+        let time = |f: &mut dyn FnMut()| {
+            let c = thread_cpu_s();
+            f();
+            thread_cpu_s()
+                .zip(c)
+                .map_or(f64::NAN, |(b, a)| (b - a) * 1e3)
+        };
+        let p = time(&mut || net.values_into(batch, &mut scratch, &mut out));
+        let r = time(&mut || net.values_reference_into(batch, &mut scratch, &mut out));
+        if i >= 20 {
+            packed.push(p);
+            reference.push(r);
+        }
+    }
+    let ratio = reference.iter().sum::<f64>() / packed.iter().sum::<f64>();
+    println!(
+        "network alone, {people:>2} people, {candidates} candidates, CPU time: packed p50 {:.3} ms, p99 {:.3} ms; gemm reference p50 {:.3} ms, p99 {:.3} ms; reference / packed {ratio:.2}x",
+        pct(&mut packed, 0.5),
+        pct(&mut packed, 0.99),
+        pct(&mut reference, 0.5),
+        pct(&mut reference, 0.99),
+    );
+}
+
 fn input_to_command(people: usize) {
     let port = testkit::free_port();
     let opts = serve::ServeOptions {
@@ -297,6 +372,15 @@ fn main() {
     println!("model: {}", model_path().display());
     // FSRL_SERVE_BENCH=walls: the walled decisions only; =decisions: the model's own only.
     let arm = std::env::var("FSRL_SERVE_BENCH").unwrap_or_default();
+    if arm == "net" {
+        for people in std::env::var("FSRL_SERVE_PEOPLE")
+            .unwrap_or_else(|_| "5,10,20".into())
+            .split(',')
+        {
+            network_arms(people.trim().parse().expect("FSRL_SERVE_PEOPLE: counts"));
+        }
+        return;
+    }
     let (only_walls, only_own) = (arm == "walls", arm == "decisions");
     let people: Vec<usize> = std::env::var("FSRL_SERVE_PEOPLE")
         .unwrap_or_else(|_| "5,10,20".into())
