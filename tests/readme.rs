@@ -448,14 +448,24 @@ fn the_readme_results_are_the_reports_numbers() {
                 .collect()
         })
         .collect();
+    // The paper's six first; then beyond the paper, the walled settings (issue 53).
+    let walled_from = rows
+        .iter()
+        .position(|r| {
+            r[0].parse::<sim::Setting>()
+                .is_ok_and(|s| s.env.is_walled())
+        })
+        .unwrap_or(rows.len());
+    let (rows, walled) = rows.split_at(walled_from);
     assert_eq!(rows.len(), 30, "six settings × four methods and fsrl-plan");
+    walled_rows_are_the_reports_numbers(walled);
     let grid = read("docs/results/grid-compare/compare.md");
     // Beyond the paper: fsrl-plan's 18 shipped models (Experiment 25); its report has no paper
     // rows, so its paper columns are FSRL's from the grid's report.
     let plan = read("docs/results/fsrl-plan/compare-six/compare.md");
     let six = read("docs/pictures/eval.md");
     let mut setting = String::new();
-    for row in &rows {
+    for row in rows {
         if !row[0].is_empty() {
             setting = row[0].clone();
         }
@@ -484,6 +494,83 @@ fn the_readme_results_are_the_reports_numbers() {
         ];
         assert_eq!(row[2..], expected, "{setting} {}", row[1]);
     }
+}
+
+/// The first cell (up to its first space) of `column` in the row of the Markdown table with
+/// `header` whose cells `key` match, as `(key column, value)` pairs.
+fn md_cell(text: &str, header: &str, key: &[(&str, &str)], column: &str) -> String {
+    let mut lines = text.lines().skip_while(|l| !l.starts_with(header));
+    let split = |l: &str| -> Vec<String> {
+        l.trim()
+            .trim_matches('|')
+            .split('|')
+            .map(|c| c.trim().to_string())
+            .collect()
+    };
+    let head = split(lines.next().unwrap_or_else(|| panic!("no table {header}")));
+    let at = |name: &str| {
+        head.iter()
+            .position(|h| h == name)
+            .unwrap_or_else(|| panic!("no column {name} in {header}"))
+    };
+    let row = lines
+        .take_while(|l| l.starts_with('|'))
+        .map(split)
+        .find(|r| key.iter().all(|(k, v)| r[at(k)] == *v))
+        .unwrap_or_else(|| panic!("no row {key:?} in {header}"));
+    row[at(column)].split(' ').next().unwrap().to_string()
+}
+
+/// The walled settings' rows (issue 53): ORCA from the walled baselines' evaluation, FSRL from
+/// the report of the model trained in that setting (seed 0, `models/fsrl-<setting>-s0.fsrlm`);
+/// no paper columns (the paper has no walls).
+fn walled_rows_are_the_reports_numbers(rows: &[Vec<String>]) {
+    let orca = read("docs/results/walls-baselines-shield/eval.md");
+    let mut setting = String::new();
+    let mut seen = BTreeSet::new();
+    for row in rows {
+        if !row[0].is_empty() {
+            setting = row[0].clone();
+        }
+        assert!(
+            setting
+                .parse::<sim::Setting>()
+                .is_ok_and(|s| s.env.is_walled()),
+            "{setting}: after the paper's six only walled settings"
+        );
+        let got = |column: &str| match row[1].as_str() {
+            "ORCA" => md_cell(
+                &orca,
+                "| method | setting |",
+                &[("method", "orca"), ("setting", &setting)],
+                column,
+            ),
+            "FSRL ‡" => {
+                let report = read(&format!("docs/results/walls/fsrl-{setting}-s0/report.md"));
+                assert!(
+                    root()
+                        .join(format!("models/fsrl-{setting}-s0.fsrlm"))
+                        .exists(),
+                    "{setting}: the model ships"
+                );
+                md_cell(&report, "| setting |", &[("setting", &setting)], column)
+            }
+            other => panic!("{setting}: unknown method {other}"),
+        };
+        let expected = [
+            got("Succ."),
+            got("Nav. Time (s)"),
+            "–".to_string(),
+            got("Disc."),
+            "–".to_string(),
+        ];
+        assert_eq!(row[2..], expected, "{setting} {}", row[1]);
+        seen.insert((setting.clone(), row[1].clone()));
+    }
+    assert!(
+        seen.len() >= 2,
+        "the walled settings have rows in the README: {seen:?}"
+    );
 }
 
 #[test]
