@@ -60,7 +60,7 @@ fn thread_cpu_s() -> Option<f64> {
         };
         // SAFETY: `ts` is a valid, writable timespec (64-bit Linux layout).
         let rc = unsafe { clock_gettime(CLOCK_THREAD_CPUTIME_ID, &mut ts) };
-        (rc == 0).then(|| ts.tv_sec as f64 + ts.tv_nsec as f64 * 1e-9)
+        (rc == 0).then_some(ts.tv_sec as f64 + ts.tv_nsec as f64 * 1e-9)
     }
     #[cfg(not(target_os = "linux"))]
     None
