@@ -18,6 +18,6 @@ pub mod grid;
 pub mod picture;
 pub mod policy_file;
 pub mod report;
-pub mod run;
 pub mod revalidation;
+pub mod run;
 pub mod select;
