@@ -169,6 +169,7 @@ fn walled_decisions(threads: usize) -> (f64, f64) {
 /// candidate of both levels, `people` humans each): the packed kernels (`values_into`) against
 /// the `gemm` reference path (`values_reference_into`), interleaved decision by decision in one
 /// run; CPU time on the thread, p50 and p99 (ms), and the reference / packed ratio of the sums.
+/// Asserts both paths give the same values bit for bit.
 fn network_arms(people: usize) {
     let (model, _) = learner::model::load_policy(&model_path()).unwrap();
     let net = model.net;
@@ -211,7 +212,7 @@ fn network_arms(people: usize) {
         })
         .collect();
     let mut scratch = policy::Scratch::default();
-    let mut out = vec![0.0f32; candidates];
+    let (mut out, mut want) = (vec![0.0f32; candidates], vec![0.0f32; candidates]);
     let (mut packed, mut reference) = (Vec::new(), Vec::new());
     for (i, data) in batches.iter().enumerate() {
         let batch = policy::StateBatch::new(data, candidates, people).unwrap();
@@ -223,7 +224,10 @@ fn network_arms(people: usize) {
                 .map_or(f64::NAN, |(b, a)| (b - a) * 1e3)
         };
         let p = time(&mut || net.values_into(batch, &mut scratch, &mut out));
-        let r = time(&mut || net.values_reference_into(batch, &mut scratch, &mut out));
+        let r = time(&mut || net.values_reference_into(batch, &mut scratch, &mut want));
+        // The packed kernels change no value (policy's tests check it too).
+        let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        assert_eq!(bits(&out), bits(&want), "state {i}: packed values differ");
         if i >= 20 {
             packed.push(p);
             reference.push(r);
