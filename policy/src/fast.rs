@@ -1,6 +1,9 @@
 //! Hand-written inference path: the same functions as the dfdx graphs in [`crate::graph`],
 //! computed straight from the flat weights with `gemm` (single-threaded) and fused bias/ReLU.
-//! Tests assert both agree to 1e-5.
+//! Tests assert both agree to 1e-5. Where the CPU has AVX-512, SARL's layers run through the
+//! packed kernels of [`crate::kernels::dense_packed`] instead (weights packed once per set of
+//! weights, [`PackedSarl`]), which sum every element exactly as `gemm` does: the values are the
+//! `gemm` path's bit for bit (`net::tests::packed_values_are_the_reference_ones`; issue 54).
 //!
 //! Two exact rewrites of CrowdNav's SARL keep the work down (both are also used by the dfdx
 //! graph, so training and inference compute the same function):

@@ -1,5 +1,6 @@
 //! Bounds-checked wrapper around `gemm` for strided f32 matrices, and small dense helpers,
-//! shared by the inference path and the fused dfdx linear op.
+//! shared by the inference path and the fused dfdx linear op; and [`dense_packed`], the
+//! inference path's AVX-512 layer kernel that sums exactly as `gemm` does (issue 54).
 
 /// A read-only strided matrix view: element `(i, j)` is `data[i · rs + j · cs]`.
 #[derive(Clone, Copy, Debug)]
