@@ -11,7 +11,8 @@ use std::path::PathBuf;
 use anyhow::bail;
 use indicatif::ProgressBar;
 use lab::evaluation::{default_settings, evaluate_orca, EvalPlan, LoadedPolicy};
-use lab::policy_file::{resolve_input, Input};
+use lab::policy_choice::resolve_input;
+use lab::policy_file::Input;
 use policy::method::Select;
 use sim::{Setting, SimConfig};
 

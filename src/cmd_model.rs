@@ -11,7 +11,7 @@ use learner::model::{
 };
 use sim::Outcome;
 
-use lab::policy_file::resolve_input;
+use lab::policy_choice::resolve_input;
 
 #[derive(Debug, clap::Args)]
 pub struct ExportArgs {

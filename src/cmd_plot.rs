@@ -9,7 +9,8 @@ use std::path::PathBuf;
 
 use anyhow::{bail, Context};
 use lab::compare::{group, load_sources};
-use lab::policy_file::{label_of, load_policy, resolve_input};
+use lab::policy_choice::resolve_input;
+use lab::policy_file::{label_of, load_policy};
 
 #[derive(Debug, clap::Args)]
 pub struct PlotArgs {

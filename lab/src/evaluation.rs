@@ -219,17 +219,17 @@ pub fn evaluate_subject(
     Ok(out)
 }
 
-/// The final evaluation of a finished run, the same in both modes: the run's policy (its
-/// `train.select` rule: the last checkpoint, or the chosen validation snapshot) on
+/// The final evaluation of a finished run, the same in both modes: the run's policy `policy`
+/// (`crate::policy_choice::run_policy`: the last checkpoint, or the chosen validation snapshot) on
 /// `train.eval_episodes` test episodes of its own setting; writes `report.json` and `report.md`
 /// into the run directory and prints the table.
-pub fn final_evaluation(out: &Path, spec: &RunSpec) -> anyhow::Result<Report> {
+pub fn final_evaluation(out: &Path, spec: &RunSpec, policy: &Path) -> anyhow::Result<Report> {
     let train = &spec.train;
     eprintln!(
         "evaluating on {} test episodes of {} ...",
         train.eval_episodes, spec.setting
     );
-    let path = crate::select::run_policy(out, None)?;
+    let path = policy.to_path_buf();
     let (model, _) = learner::model::load_policy(&path)
         .with_context(|| format!("cannot load {}", path.display()))?;
     let subject = Subject::of_run(spec, &model.net);

@@ -16,6 +16,7 @@ pub mod figures;
 pub mod frontier;
 pub mod grid;
 pub mod picture;
+pub mod policy_choice;
 pub mod policy_file;
 pub mod report;
 pub mod revalidation;

@@ -4,39 +4,13 @@
 
 use std::path::{Path, PathBuf};
 
-use anyhow::{bail, Context};
+use anyhow::Context;
 use learner::model::{self, ArtifactKind, Model};
-use policy::method::Select;
 
 /// A policy file (model file or checkpoint) and the run directory it belongs to, if any.
 pub struct Input {
     pub checkpoint: PathBuf,
     pub run_dir: Option<PathBuf>,
-}
-
-/// A run directory means its `checkpoints/latest.ckpt` or the validation snapshot its
-/// `train.select` (or `select`, when given) chooses; anything else is a model file or a
-/// checkpoint.
-pub fn resolve_input(path: &Path, select: Option<Select>) -> anyhow::Result<Input> {
-    if path.is_dir() {
-        if !path.join("checkpoints").join("latest.ckpt").exists() {
-            bail!(
-                "{}: a directory without checkpoints/latest.ckpt (not a run directory of `fsrl train`)",
-                path.display()
-            );
-        }
-        Ok(Input {
-            checkpoint: crate::select::run_policy(path, select)?,
-            run_dir: Some(path.to_path_buf()),
-        })
-    } else if path.exists() {
-        Ok(Input {
-            checkpoint: path.to_path_buf(),
-            run_dir: None,
-        })
-    } else {
-        bail!("{}: no such checkpoint or run directory", path.display())
-    }
 }
 
 /// A short name: the run directory's name, else `<dir>/<file stem>` of the checkpoint.
@@ -109,6 +83,7 @@ pub fn subject_label(input: &Input, model: &Model, kind: ArtifactKind) -> String
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::policy_choice::resolve_input;
 
     #[test]
     fn inputs_are_labelled_and_hashed_and_bad_paths_named() {

@@ -396,7 +396,8 @@ mod tests {
     use super::*;
     use std::collections::BTreeMap;
 
-    use crate::select::{run_policy_with, snapshot_dir, tests::snapshot};
+    use crate::policy_choice::run_policy_with;
+    use crate::select::{snapshot_dir, tests::snapshot};
     use policy::method::Select;
 
     fn v(ep: u64, ret: f64) -> Validation {

@@ -702,7 +702,11 @@ fn final_report(run: &mut Prepared, mut w: Watched, started: Instant) -> anyhow:
     let launch = &run.launch;
     let rl_end_s = started.elapsed().as_secs_f64();
     let final_start = Instant::now();
-    final_evaluation(out, &launch.resolved.spec())?;
+    final_evaluation(
+        out,
+        &launch.resolved.spec(),
+        &lab::policy_choice::run_policy(out, None)?,
+    )?;
     let mut timing = RunTiming::read(out, "distributed");
     timing.set("actors", launch.actors);
     timing.set("transport", plane_name(launch.data_plane));
@@ -726,7 +730,7 @@ fn final_report(run: &mut Prepared, mut w: Watched, started: Instant) -> anyhow:
     if train.select == policy::method::Select::RevalidatedReturn {
         // Which snapshots were re-validated, what they scored and which is the policy (the
         // final evaluation's choice: every candidate is in revalidation.jsonl by now).
-        let chosen = lab::select::chosen_snapshot(
+        let chosen = lab::policy_choice::chosen_snapshot(
             out,
             train.select,
             train.rl.epsilon_decay_episodes,

@@ -68,7 +68,7 @@ pub fn run(r: SingleRun, stop: &AtomicBool) -> anyhow::Result<()> {
     }
     // Final evaluation on the setting's test seeds: the run's policy by its selection rule.
     let final_start = Instant::now();
-    final_evaluation(out, &spec)?;
+    final_evaluation(out, &spec, &lab::policy_choice::run_policy(out, None)?)?;
     timing.add_s("final_evaluation_s", final_start.elapsed().as_secs_f64());
     timing.add_s("total_s", final_start.elapsed().as_secs_f64());
     timing.write(out)?;
