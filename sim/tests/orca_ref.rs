@@ -16,6 +16,8 @@
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
+mod support;
+
 use sim::geom::Vec2f;
 use sim::orca::{Orca, OrcaAgent, OrcaParams};
 use sim::rvo::{ObstacleSet, Simulator};
@@ -134,43 +136,12 @@ fn parse(path: &Path) -> Scene {
     }
 }
 
-fn csv_files(dir: &Path, out: &mut Vec<PathBuf>) {
-    let entries = std::fs::read_dir(dir).unwrap_or_else(|e| {
-        panic!(
-            "cannot read ORCA reference directory {}: {e}",
-            dir.display()
-        )
-    });
-    for entry in entries {
-        let path = entry.expect("directory entry").path();
-        if path.is_dir() {
-            csv_files(&path, out);
-        } else if path.extension().is_some_and(|e| e == "csv") {
-            out.push(path);
-        }
-    }
-}
-
 fn scene_files() -> (PathBuf, Vec<PathBuf>) {
-    let root = PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../testdata"));
-    let (label, dirs) = match std::env::var_os("FSRL_ORCA_REF_DIR") {
-        Some(dir) => (PathBuf::from(&dir), vec![PathBuf::from(dir)]),
-        None => (
-            root.clone(),
-            vec![root.join("orca_ref"), root.join("orca_ref_obstacles")],
-        ),
-    };
-    let mut files = Vec::new();
-    for dir in &dirs {
-        csv_files(dir, &mut files);
-    }
-    files.sort();
-    assert!(
-        !files.is_empty(),
-        "no ORCA reference scenes (*.csv) found in {}: nothing was compared",
-        label.display()
-    );
-    (label, files)
+    support::reference_csvs(
+        "FSRL_ORCA_REF_DIR",
+        &["orca_ref", "orca_ref_obstacles"],
+        "ORCA",
+    )
 }
 
 fn obstacle_set(scene: &Scene, path: &Path) -> ObstacleSet {

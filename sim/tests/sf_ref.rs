@@ -17,6 +17,8 @@
 
 use std::path::{Path, PathBuf};
 
+mod support;
+
 use sim::geom::Vec2;
 use sim::social_force::{
     group_coherence_factor, Pedestrian, Segment, SocialForceParams, SocialForceSim,
@@ -396,37 +398,8 @@ fn parse(path: &Path) -> Result<Scene, String> {
     })
 }
 
-fn csv_files(dir: &Path, out: &mut Vec<PathBuf>) {
-    let entries = std::fs::read_dir(dir).unwrap_or_else(|e| {
-        panic!(
-            "cannot read social-force reference directory {}: {e}",
-            dir.display()
-        )
-    });
-    for entry in entries {
-        let path = entry.expect("directory entry").path();
-        if path.is_dir() {
-            csv_files(&path, out);
-        } else if path.extension().is_some_and(|e| e == "csv") {
-            out.push(path);
-        }
-    }
-}
-
 fn scene_files() -> Vec<PathBuf> {
-    let dir = match std::env::var_os("FSRL_SF_REF_DIR") {
-        Some(dir) => PathBuf::from(dir),
-        None => PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../testdata/sf_ref")),
-    };
-    let mut files = Vec::new();
-    csv_files(&dir, &mut files);
-    files.sort();
-    assert!(
-        !files.is_empty(),
-        "no social-force reference scenes (*.csv) in {}: nothing was compared",
-        dir.display()
-    );
-    files
+    support::reference_csvs("FSRL_SF_REF_DIR", &["sf_ref"], "social-force").1
 }
 
 /// How the README beside a file rates its scene: `Some(None)` not chaotic (drift bracket `-`),
