@@ -294,17 +294,19 @@ impl Lookahead {
         if self.planning_top_k == 0 {
             return Ok(best);
         }
-        self.plan_second_step(env, net, discount)
+        self.plan_second_step(env, net, discount, seen_goal)
     }
 
     /// Depth-2 planning: rescores the `planning_top_k` best first steps of the decision just
     /// made (`rewards`, `values`, `terminal`, `robot_next` hold its candidates) and returns the
     /// best rescored one. A first step that ends the episode keeps its one-step score.
+    /// `seen_goal`: the goal the robot observes, as the first step saw it.
     fn plan_second_step(
         &mut self,
         env: &Env,
         net: &ValueNet,
         discount: f64,
+        seen_goal: Vec2,
     ) -> Result<Decision, PolicyError> {
         let dt_s = env.config().dt_s;
         let n_actions = self.rewards.len();
@@ -355,7 +357,6 @@ impl Lookahead {
         plan.obs
             .extend(self.obstacles.iter().map(|&p| HumanObs::obstacle(p)));
 
-        let seen_goal = env.observed_goal();
         plan.batch.clear();
         plan.rewards.clear();
         plan.terminal.clear();
