@@ -229,9 +229,8 @@ pub fn final_evaluation(out: &Path, spec: &RunSpec, policy: &Path) -> anyhow::Re
         "evaluating on {} test episodes of {} ...",
         train.eval_episodes, spec.setting
     );
-    let path = policy.to_path_buf();
-    let (model, _) = learner::model::load_policy(&path)
-        .with_context(|| format!("cannot load {}", path.display()))?;
+    let (model, _) = learner::model::load_policy(policy)
+        .with_context(|| format!("cannot load {}", policy.display()))?;
     let subject = Subject::of_run(spec, &model.net);
     let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
     let results = evaluate(
