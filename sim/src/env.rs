@@ -75,6 +75,8 @@ pub struct Env {
     /// Static obstacles, and every human's way to its goal then the robot's (walled only).
     walls: Option<Arc<Walls>>,
     routes: Vec<Route>,
+    /// Every agent as the doors' turns see it, kept between steps (`take_turns_at_doors`).
+    movers: Vec<Mover>,
     /// Per person, drawn from the seed at every reset ([`Env::social_force_humans`],
     /// [`Env::humans_noticing_robot`]).
     social: Vec<bool>,
@@ -162,6 +164,7 @@ impl Env {
             outcome: Outcome::Running,
             walls: None,
             routes: Vec::new(),
+            movers: Vec::new(),
             social: Vec::with_capacity(n),
             notices: Vec::with_capacity(n),
             sf_params: cfg.social_force.params(cfg.dt_s),
@@ -228,6 +231,12 @@ impl Env {
     /// setting.
     pub fn humans_noticing_robot(&self) -> &[bool] {
         &self.notices
+    }
+
+    /// Whether person `i` takes the robot into account (its ORCA neighbours, its social force):
+    /// the robot is visible in the setting and the person notices it.
+    fn sees_robot(&self, i: usize) -> bool {
+        self.setting.robot_visible && self.notices[i]
     }
 
     /// Takes the scenario's walls and plans every agent's way to its goal over them.
@@ -393,26 +402,25 @@ impl Env {
     /// People see the robot only when it is visible; the ORCA robot sees everyone.
     fn take_turns_at_doors(&mut self, w: &Walls) {
         let n = self.humans.len();
-        let movers: Vec<Mover> = self
-            .humans
-            .iter()
-            .map(|h| Mover {
-                position: h.position,
-                goal: h.goal,
-                moving: !h.standing,
-            })
-            .chain(std::iter::once(Mover {
-                position: self.robot.position,
-                goal: self.robot.goal,
-                moving: true,
-            }))
-            .collect();
+        let mut movers = std::mem::take(&mut self.movers);
+        movers.clear();
+        movers.extend(self.humans.iter().map(|h| Mover {
+            position: h.position,
+            goal: h.goal,
+            moving: !h.standing,
+        }));
+        movers.push(Mover {
+            position: self.robot.position,
+            goal: self.robot.goal,
+            moving: true,
+        });
         let robot_seen = self.setting.robot_visible;
         for (k, agent) in self.orca_agents.iter_mut().enumerate() {
             if let Some(spot) = w.door_turn(k, &movers, |j| j < n || robot_seen || k == n) {
                 agent.pref_velocity = pref_velocity(movers[k].position, spot);
             }
         }
+        self.movers = movers;
     }
 
     /// The velocity every human takes during the coming step, from the current state: zero for
@@ -423,7 +431,6 @@ impl Env {
         if !self.human_velocity_valid {
             self.fill_orca_agents(0.0);
             let n = self.humans.len();
-            let robot_visible = self.setting.robot_visible;
             self.human_velocity.clear();
             for i in 0..n {
                 let v = if self.humans[i].standing {
@@ -431,11 +438,7 @@ impl Env {
                 } else if self.social[i] {
                     self.social_force_velocity(i)
                 } else {
-                    let visible_len = if robot_visible && self.notices[i] {
-                        n + 1
-                    } else {
-                        n
-                    };
+                    let visible_len = if self.sees_robot(i) { n + 1 } else { n };
                     let agents = &self.orca_agents[..visible_len];
                     let v = match &self.walls {
                         Some(w) => self.orca.new_velocity_among(i, agents, w.obstacles()),
@@ -472,7 +475,8 @@ impl Env {
             .enumerate()
             .filter(|&(j, _)| j != i)
             .map(|(_, o)| (o.position, o.velocity));
-        let robot = (self.setting.robot_visible && self.notices[i])
+        let robot = self
+            .sees_robot(i)
             .then_some((self.robot.position, self.robot.velocity));
         let force = sf::agent_force(
             &self.sf_params,
