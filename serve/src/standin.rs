@@ -342,6 +342,7 @@ impl Links {
         &mut self,
         env: &Env,
         people_bytes: Vec<u8>,
+        odometry: &Odometry,
         t: f64,
         timeout: Duration,
         seed: u64,
@@ -351,7 +352,7 @@ impl Links {
         if let Some(s) = scan_of(env, t) {
             self.scan.put(&s)?;
         }
-        self.odom.put(&odometry_of(env, t))?;
+        self.odom.put(odometry)?;
         let bytes = self.cmd.recv_timeout(timeout).map_err(|_| {
             ServeError::Zenoh(format!(
                 "no command within {timeout:?} (seed {seed}, step {})",
@@ -469,9 +470,12 @@ fn play(
     let mut disagreements = 0;
     while !env.is_done() {
         let t = t0 + env.steps() as f64 * dt;
-        // The people message of this step: published below, read back by the reference.
-        let people_bytes = match link {
-            Connected::Topics(l) => Some(people_of(env, t, l.people_format)?),
+        // The people and odometry messages of this step: published below, read back by the
+        // reference.
+        let messages = match link {
+            Connected::Topics(l) => {
+                Some((people_of(env, t, l.people_format)?, odometry_of(env, t)))
+            }
             Connected::Asker(_) => None,
         };
         let want = match reference.as_deref_mut() {
@@ -479,12 +483,12 @@ fn play(
                 // The reference decides among the scene's own walls (what `--map` gives).
                 p.set_walls(env.walls().cloned());
                 let mut obs = Observation::of_env(env);
-                if let (Connected::Topics(l), Some(b)) = (&*link, &people_bytes) {
+                if let (Connected::Topics(l), Some((b, odometry))) = (&*link, &messages) {
                     // What `fsrl serve` reads: the people's bytes and the odometry's round
                     // trips (the quaternion, the body-frame twist), each a rounding away from
                     // the simulator's state and enough to flip a near tie among walls.
                     obs.humans = people::decode(l.people_format, b).map_err(config)?.people;
-                    obs.robot = crate::control::robot_of(&odometry_of(env, t));
+                    obs.robot = crate::control::robot_of(odometry);
                 }
                 Some(p.decide(&obs)?.action)
             }
@@ -492,8 +496,8 @@ fn play(
         };
         let action = match link {
             Connected::Topics(l) => {
-                let b = people_bytes.unwrap_or_default();
-                l.step(env, b, t, timeout, seed)?
+                let (b, odometry) = messages.unwrap_or_default();
+                l.step(env, b, &odometry, t, timeout, seed)?
             }
             Connected::Asker(a) => a.step(env, seed)?,
         };
