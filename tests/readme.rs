@@ -395,6 +395,15 @@ fn every_relative_link_resolves() {
     assert!(checked >= 20, "only {checked} links found");
 }
 
+/// The cells of one Markdown table row, trimmed.
+fn cells(line: &str) -> Vec<String> {
+    line.trim()
+        .trim_matches('|')
+        .split('|')
+        .map(|c| c.trim().to_string())
+        .collect()
+}
+
 /// The cells of the Markdown table under the heading starting with `section` in `text`, as
 /// rows of cells (header row first, the `|---|` row left out).
 fn table(text: &str, section: &str) -> Vec<Vec<String>> {
@@ -407,13 +416,7 @@ fn table(text: &str, section: &str) -> Vec<Vec<String>> {
         .skip_while(|l| !l.starts_with('|'))
         .take_while(|l| l.starts_with('|'))
         .filter(|l| !l.starts_with("|---"))
-        .map(|l| {
-            l.trim()
-                .trim_matches('|')
-                .split('|')
-                .map(|c| c.trim().to_string())
-                .collect()
-        })
+        .map(cells)
         .collect()
 }
 
@@ -440,13 +443,7 @@ fn the_readme_results_are_the_reports_numbers() {
         .skip_while(|l| *l != header)
         .skip(2)
         .take_while(|l| l.starts_with('|'))
-        .map(|l| {
-            l.trim()
-                .trim_matches('|')
-                .split('|')
-                .map(|c| c.trim().to_string())
-                .collect()
-        })
+        .map(cells)
         .collect();
     // The paper's six first; then beyond the paper, the walled settings (issue 53).
     let walled_from = rows
@@ -500,14 +497,7 @@ fn the_readme_results_are_the_reports_numbers() {
 /// `header` whose cells `key` match, as `(key column, value)` pairs.
 fn md_cell(text: &str, header: &str, key: &[(&str, &str)], column: &str) -> String {
     let mut lines = text.lines().skip_while(|l| !l.starts_with(header));
-    let split = |l: &str| -> Vec<String> {
-        l.trim()
-            .trim_matches('|')
-            .split('|')
-            .map(|c| c.trim().to_string())
-            .collect()
-    };
-    let head = split(lines.next().unwrap_or_else(|| panic!("no table {header}")));
+    let head = cells(lines.next().unwrap_or_else(|| panic!("no table {header}")));
     let at = |name: &str| {
         head.iter()
             .position(|h| h == name)
@@ -515,7 +505,7 @@ fn md_cell(text: &str, header: &str, key: &[(&str, &str)], column: &str) -> Stri
     };
     let row = lines
         .take_while(|l| l.starts_with('|'))
-        .map(split)
+        .map(cells)
         .find(|r| key.iter().all(|(k, v)| r[at(k)] == *v))
         .unwrap_or_else(|| panic!("no row {key:?} in {header}"));
     row[at(column)].split(' ').next().unwrap().to_string()
