@@ -9,6 +9,7 @@ mod cmd_model;
 mod cmd_plot;
 mod cmd_reproduce;
 mod cmd_robot;
+mod cmd_robustness;
 mod cmd_roles;
 mod cmd_router;
 mod cmd_serve;
@@ -45,6 +46,8 @@ enum Command {
     ExportModel(cmd_model::ExportArgs),
     /// One table across runs: methods × settings, mean ± std over seeds, beside the paper.
     Compare(cmd_compare::CompareArgs),
+    /// Every model tested, without retraining, with 5/10/15/20 ORCA or social-force people.
+    Robustness(cmd_robustness::RobustnessArgs),
     /// Pictures (SVG and PNG): outcome bars, learning curves, ablation, episode with attention.
     Plot(cmd_plot::PlotArgs),
     /// The paper's grid: train methods × settings × seeds (resumable), export, evaluate, report.
@@ -84,6 +87,7 @@ fn main() -> ExitCode {
             | Command::Eval(_)
             | Command::ExportModel(_)
             | Command::Compare(_)
+            | Command::Robustness(_)
             | Command::Plot(_)
             | Command::CheckConfig(_)
     ) {
@@ -101,6 +105,7 @@ fn main() -> ExitCode {
         Command::Eval(args) => cmd_eval::run(args),
         Command::ExportModel(args) => cmd_model::run(args),
         Command::Compare(args) => cmd_compare::run(args),
+        Command::Robustness(args) => cmd_robustness::run(args),
         Command::Plot(args) => cmd_plot::run(args),
         Command::Reproduce(args) => cmd_reproduce::run(args),
         Command::Learner(args) => cmd_roles::learner(args),

@@ -262,6 +262,65 @@ fn every_command_that_takes_a_checkpoint_takes_a_model_file() {
             "{e}"
         );
     }
+    // Another crowd (issue 54): the report says which; out of range or among walls: an error.
+    let json_of = |out: &str| -> serde_json::Value {
+        serde_json::from_str(&std::fs::read_to_string(dir.join(out).join("eval.json")).unwrap())
+            .unwrap()
+    };
+    assert!(json_of("ev").get("crowd").is_none());
+    let crowded = eval_subject("ev-crowd", &["--people", "20", "--crowd", "social-force"]);
+    assert_eq!(crowded["settings"][0]["episodes"], 3, "{crowded}");
+    assert_eq!(
+        json_of("ev-crowd")["crowd"],
+        "20 moving people, social-force people"
+    );
+    for (args, says) in [
+        (&["--people", "0"][..], "--people must be in 1..=40, got 0"),
+        (
+            &["--people", "5", "--settings", "corridor"],
+            "corridor places its own",
+        ),
+        (&["--crowd", "ballet"], "ballet"),
+    ] {
+        let mut a = vec!["eval", s(&model_path), "--episodes", "1"];
+        a.extend_from_slice(args);
+        let e = fails(&a);
+        assert!(e.contains(says), "{e}");
+    }
+    // `fsrl robustness`: every crowd, one report each, then the table; a second run reuses them.
+    let rb = dir.join("rb");
+    let table = ok(&[
+        "robustness",
+        s(&model_path),
+        "--episodes",
+        "1",
+        "--out",
+        s(&rb),
+    ]);
+    assert!(table.contains("| fsrl env1-invisible |"), "{table}");
+    for v in lab::robustness::VARIANTS {
+        assert!(rb
+            .join(v.dir_name())
+            .join("env1-invisible/eval.json")
+            .is_file());
+    }
+    let before = std::fs::metadata(rb.join("orca-20/env1-invisible/eval.json"))
+        .unwrap()
+        .modified()
+        .unwrap();
+    ok(&[
+        "robustness",
+        s(&model_path),
+        "--episodes",
+        "1",
+        "--out",
+        s(&rb),
+    ]);
+    let after = std::fs::metadata(rb.join("orca-20/env1-invisible/eval.json"))
+        .unwrap()
+        .modified()
+        .unwrap();
+    assert_eq!(before, after, "an up-to-date report is not evaluated again");
     let wins = model
         .check
         .iter()

@@ -603,6 +603,7 @@ mod tests {
         };
         let report = EvalReport {
             kind: EVAL_KIND.into(),
+            crowd: None,
             test_seed_start: 1000,
             episodes_per_setting: 100,
             subjects: vec![SubjectReport {

@@ -10,7 +10,7 @@ use std::sync::Mutex;
 use anyhow::Context;
 use evaluator::{evaluate, Subject};
 use policy::method::RunSpec;
-use sim::{Aggregate, Setting, SimConfig};
+use sim::{Aggregate, CrowdModel, Setting, SimConfig};
 
 use crate::policy_file::{bytes_sha256, subject_label, Input};
 use crate::report::{Report, Samples, SettingReport, SubjectReport};
@@ -29,6 +29,84 @@ pub struct EvalPlan {
     pub planning_top_k: Option<usize>,
     /// Overrides every model's `train.planning_breadth` (`fsrl eval --planning-breadth`).
     pub planning_breadth: Option<usize>,
+    /// A crowd other than the one each policy was trained with (`fsrl eval --people / --crowd`).
+    pub crowd: Crowd,
+}
+
+/// The most moving people `fsrl eval --people` accepts.
+pub const MAX_PEOPLE: usize = 40;
+
+/// The most people the paper's 4 m circle holds at its density (Env 1's ten): above it, the
+/// circle grows so that its people per square metre stay the paper's ([`Crowd::apply`]).
+pub const CIRCLE_PEOPLE: usize = 10;
+
+/// A crowd other than the trained one (issue 54's robustness table): `people` moving people per
+/// episode in the paper's settings, and people who all follow `model`. Env 2's and Env 3's five
+/// standing people stay. Up to [`CIRCLE_PEOPLE`] moving people cross the paper's 4 m circle;
+/// more cross a circle grown by √(people / 10) (5.66 m for 20), so that the crowd is larger at
+/// the paper's density (twenty people do not fit on the 4 m circle with their goals clear), while
+/// the robot's start, goal and time limit stay the paper's. `Crowd::default()` changes nothing.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct Crowd {
+    pub people: Option<usize>,
+    pub model: Option<CrowdModel>,
+}
+
+#[derive(Debug, thiserror::Error, PartialEq)]
+pub enum CrowdError {
+    #[error("--people must be in 1..={MAX_PEOPLE}, got {0}")]
+    People(usize),
+    #[error(
+        "--people sets the moving people of the paper's six settings; {0} places its own (its \
+         [sim.walls.*] section says how many)"
+    )]
+    Walled(Setting),
+}
+
+impl Crowd {
+    /// Checks the crowd against the settings it will be used in.
+    pub fn check(&self, settings: &[Setting]) -> Result<(), CrowdError> {
+        if let Some(n) = self.people {
+            if n == 0 || n > MAX_PEOPLE {
+                return Err(CrowdError::People(n));
+            }
+            if let Some(s) = settings.iter().find(|s| !s.is_paper()) {
+                return Err(CrowdError::Walled(*s));
+            }
+        }
+        Ok(())
+    }
+
+    /// `sim` with this crowd in `setting`: `humans.count` is the moving people plus the
+    /// setting's standing ones (Env 1 has none).
+    pub fn apply(&self, sim: &SimConfig, setting: Setting) -> SimConfig {
+        let mut sim = sim.clone();
+        if let Some(n) = self.people {
+            let standing = match setting.env {
+                sim::EnvKind::Env1 => 0,
+                _ => sim.humans.standing,
+            };
+            sim.humans.count = n + standing;
+            if n > CIRCLE_PEOPLE {
+                sim.humans.circle_radius_m *= (n as f64 / CIRCLE_PEOPLE as f64).sqrt();
+            }
+        }
+        if let Some(m) = self.model {
+            sim.humans.model = m;
+        }
+        sim
+    }
+
+    /// "20 moving people, social-force" (`None` for the trained crowd).
+    pub fn label(&self) -> Option<String> {
+        let parts: Vec<String> = self
+            .people
+            .map(|n| format!("{n} moving people"))
+            .into_iter()
+            .chain(self.model.map(|m| format!("{m} people")))
+            .collect();
+        (!parts.is_empty()).then(|| parts.join(", "))
+    }
 }
 
 /// The settings a policy is evaluated on when none are named: the paper's six for a policy
@@ -57,15 +135,7 @@ pub fn evaluate_orca(
         planning_breadth: 0,
         orca_safety_space_m: plan.orca_safety_space_m,
     };
-    let settings = evaluate_subject(
-        subject,
-        sim,
-        &plan.settings,
-        plan.seed_start,
-        plan.episodes,
-        plan.threads,
-        done,
-    )?;
+    let settings = evaluate_in_crowd(subject, sim, plan, done)?;
     Ok(SubjectReport {
         label: "orca".into(),
         method: "orca".into(),
@@ -118,16 +188,8 @@ impl LoadedPolicy {
             planning_breadth: plan.planning_breadth.unwrap_or(learned.planning_breadth),
             ..learned
         };
-        let settings = evaluate_subject(
-            subject,
-            &model.sim,
-            &plan.settings,
-            plan.seed_start,
-            plan.episodes,
-            plan.threads,
-            done,
-        )
-        .with_context(|| format!("evaluating {}", self.path.display()))?;
+        let settings = evaluate_in_crowd(subject, &model.sim, plan, done)
+            .with_context(|| format!("evaluating {}", self.path.display()))?;
         Ok(SubjectReport {
             label: self.label.clone(),
             method: model.method.name().to_string(),
@@ -141,6 +203,37 @@ impl LoadedPolicy {
             settings,
         })
     }
+}
+
+/// [`evaluate_subject`] on `plan`, in `plan.crowd` (the crowd of `sim` when it is the default).
+fn evaluate_in_crowd(
+    subject: Subject<'_>,
+    sim: &SimConfig,
+    plan: &EvalPlan,
+    done: &(dyn Fn() + Sync),
+) -> anyhow::Result<Vec<SettingReport>> {
+    let run = |sim: &SimConfig, settings: &[Setting]| {
+        evaluate_subject(
+            subject,
+            sim,
+            settings,
+            plan.seed_start,
+            plan.episodes,
+            plan.threads,
+            done,
+        )
+    };
+    if plan.crowd == Crowd::default() {
+        return run(sim, &plan.settings);
+    }
+    plan.crowd.check(&plan.settings)?;
+    let mut out = Vec::with_capacity(plan.settings.len());
+    for &setting in &plan.settings {
+        let sim = plan.crowd.apply(sim, setting);
+        sim.validate()?;
+        out.extend(run(&sim, &[setting])?);
+    }
+    Ok(out)
 }
 
 /// Runs `episodes` test episodes per setting of one subject, one episode per evaluator call,
@@ -265,6 +358,45 @@ mod tests {
     use super::*;
 
     #[test]
+    fn a_crowd_sets_moving_people_beside_the_standing_ones_and_grows_the_circle_past_ten() {
+        let sim = SimConfig::default();
+        let env1: Setting = "env1-invisible".parse().unwrap();
+        let env2: Setting = "env2-visible".parse().unwrap();
+        assert_eq!(Crowd::default().apply(&sim, env1), sim);
+        let c = |n| Crowd {
+            people: Some(n),
+            model: Some(CrowdModel::SocialForce),
+        };
+        let five = c(5).apply(&sim, env1);
+        assert_eq!(five.humans.count, 5);
+        assert_eq!(five.humans.circle_radius_m, sim.humans.circle_radius_m);
+        assert_eq!(five.humans.model, CrowdModel::SocialForce);
+        assert_eq!(c(5).apply(&sim, env2).humans.count, 5 + sim.humans.standing);
+        let twenty = c(20).apply(&sim, env1);
+        assert_eq!(twenty.humans.count, 20);
+        let r = twenty.humans.circle_radius_m / sim.humans.circle_radius_m;
+        assert!((r - 2f64.sqrt()).abs() < 1e-12, "{r}");
+        assert_eq!(c(0).check(&[env1]), Err(CrowdError::People(0)));
+        assert_eq!(c(41).check(&[env1]), Err(CrowdError::People(41)));
+        let corridor: Setting = "corridor".parse().unwrap();
+        let e = c(10).check(&[env1, corridor]).unwrap_err();
+        assert!(e.to_string().contains("corridor places its own"), "{e}");
+        // Twenty people fit in the grown circle: every episode is placed and runs.
+        let plan = EvalPlan {
+            settings: vec![env1, env2],
+            seed_start: 1000,
+            episodes: 3,
+            threads: 2,
+            orca_safety_space_m: 0.0,
+            planning_top_k: None,
+            planning_breadth: None,
+            crowd: c(20),
+        };
+        let r = evaluate_orca(&sim, &plan, &|| {}).unwrap();
+        assert!(r.settings.iter().all(|s| s.episodes == 3));
+    }
+
+    #[test]
     fn an_evaluation_does_not_depend_on_its_thread_count_and_counts_every_episode() {
         let sim = SimConfig::default();
         let settings: Vec<Setting> = ["env1-invisible", "env2-visible"]
@@ -279,6 +411,7 @@ mod tests {
             orca_safety_space_m: 0.0,
             planning_top_k: None,
             planning_breadth: None,
+            crowd: Crowd::default(),
         };
         let done = AtomicUsize::new(0);
         let one = evaluate_orca(&sim, &plan(1), &|| {

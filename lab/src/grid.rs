@@ -661,6 +661,7 @@ mod tests {
         };
         serde_json::to_string(&EvalReport {
             kind: EVAL_KIND.into(),
+            crowd: None,
             test_seed_start: 1000,
             episodes_per_setting: episodes,
             subjects: vec![subject],

@@ -20,5 +20,6 @@ pub mod policy_choice;
 pub mod policy_file;
 pub mod report;
 pub mod revalidation;
+pub mod robustness;
 pub mod run;
 pub mod select;

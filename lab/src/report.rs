@@ -699,6 +699,10 @@ pub struct EvalReport {
     pub kind: String,
     pub test_seed_start: u64,
     pub episodes_per_setting: u32,
+    /// The crowd every subject met when it was not the one each was trained with
+    /// (`fsrl eval --people / --crowd`, e.g. "20 moving people, social-force people").
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub crowd: Option<String>,
     pub subjects: Vec<SubjectReport>,
 }
 
@@ -726,6 +730,12 @@ impl EvalReport {
                 "."
             }
         );
+        if let Some(crowd) = &self.crowd {
+            let _ = writeln!(
+                s,
+                "Crowd: {crowd}, not the crowd the policies were trained with.\n"
+            );
+        }
         for metric in Metric::ALL.into_iter().filter(|_| paper_settings) {
             let d = metric.digits();
             let _ = writeln!(s, "## {}\n", metric.title());

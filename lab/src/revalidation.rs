@@ -286,6 +286,7 @@ pub fn evaluate_snapshot(path: &Path, how: &Plan, k: usize, n: usize) -> anyhow:
         orca_safety_space_m: 0.0,
         planning_top_k: None,
         planning_breadth: None,
+        crowd: Default::default(),
     };
     let terminal = std::io::stderr().is_terminal();
     let done = AtomicU32::new(0);

@@ -146,6 +146,7 @@ fn plan(settings: Vec<Setting>, episodes: u32) -> EvalPlan {
         orca_safety_space_m: 0.0,
         planning_top_k: None,
         planning_breadth: None,
+        crowd: Default::default(),
     }
 }
 
@@ -240,6 +241,7 @@ fn a_walled_setting_evaluated_end_to_end_reports_the_three_rates_and_a_paper_set
     }
     let report = EvalReport {
         kind: EVAL_KIND.into(),
+        crowd: None,
         test_seed_start: 1000,
         episodes_per_setting: 12,
         subjects: vec![orca.clone()],

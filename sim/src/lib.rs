@@ -40,7 +40,9 @@ pub mod scenes;
 pub mod social_force;
 pub mod walled;
 
-pub use config::{ConfigError, DynamicReading, EnvKind, Kinematics, Semantics, Setting, SimConfig};
+pub use config::{
+    ConfigError, CrowdModel, DynamicReading, EnvKind, Kinematics, Semantics, Setting, SimConfig,
+};
 pub use env::{Env, EnvError, RobotCommand, StepInfo};
 pub use episode::{
     is_frozen, run_episode, run_episode_with, Aggregate, Episode, EpisodeSummary, Frame,
