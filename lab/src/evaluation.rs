@@ -86,10 +86,11 @@ impl Crowd {
                 sim::EnvKind::Env1 => 0,
                 _ => sim.humans.standing,
             };
+            // A model trained on crowds of any size keeps the person rows it was trained with.
+            sim.humans.slots = sim.people_slots(setting.env);
+            sim.humans.count_max = None;
             sim.humans.count = n + standing;
-            if n > CIRCLE_PEOPLE {
-                sim.humans.circle_radius_m *= (n as f64 / CIRCLE_PEOPLE as f64).sqrt();
-            }
+            sim.humans.circle_grows_past.get_or_insert(CIRCLE_PEOPLE);
         }
         if let Some(m) = self.model {
             sim.humans.model = m;
@@ -369,13 +370,30 @@ mod tests {
         };
         let five = c(5).apply(&sim, env1);
         assert_eq!(five.humans.count, 5);
-        assert_eq!(five.humans.circle_radius_m, sim.humans.circle_radius_m);
         assert_eq!(five.humans.model, CrowdModel::SocialForce);
         assert_eq!(c(5).apply(&sim, env2).humans.count, 5 + sim.humans.standing);
+        assert_eq!(
+            five.humans.slots, None,
+            "a model of one crowd size has no slots"
+        );
+        let mut any = sim.clone();
+        any.humans.count = 5;
+        any.humans.count_max = Some(20);
+        let tested = c(10).apply(&any, env1);
+        assert_eq!(
+            (
+                tested.humans.count,
+                tested.humans.count_max,
+                tested.humans.slots
+            ),
+            (10, None, Some(20)),
+            "a model of any crowd keeps its 20 rows in a crowd of 10"
+        );
+        assert_eq!(tested.entities(env1), 20);
+        assert_eq!(c(30).apply(&any, env1).entities(env1), 30);
         let twenty = c(20).apply(&sim, env1);
         assert_eq!(twenty.humans.count, 20);
-        let r = twenty.humans.circle_radius_m / sim.humans.circle_radius_m;
-        assert!((r - 2f64.sqrt()).abs() < 1e-12, "{r}");
+        assert_eq!(twenty.humans.circle_grows_past, Some(CIRCLE_PEOPLE));
         assert_eq!(c(0).check(&[env1]), Err(CrowdError::People(0)));
         assert_eq!(c(41).check(&[env1]), Err(CrowdError::People(41)));
         let corridor: Setting = "corridor".parse().unwrap();

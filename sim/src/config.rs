@@ -331,6 +331,23 @@ pub struct HumanConfig {
     /// neighbours or its social force, as everyone does in an invisible setting.
     #[serde(skip_serializing_if = "is_one")]
     pub visible_prob: f64,
+    /// Crowds of any size (issue 54): each episode of the paper's settings draws its
+    /// `humans.count` uniformly from `count..=count_max` (from the episode's seed, a stream of
+    /// its own), and the networks see `count_max` person rows, the empty ones as "no return"
+    /// points ([`SimConfig::people_slots`]). Unset: every episode has `count` people.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub count_max: Option<usize>,
+    /// The person rows the networks see when no count range is drawn (`fsrl eval --people`
+    /// testing a model trained with `count_max` in a crowd of one size keeps its rows)
+    /// [default: `count_max`].
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub slots: Option<usize>,
+    /// The most moving people the circle-crossing circle holds at `circle_radius_m`: an episode
+    /// with more crosses a circle grown by √(people / this), the same people per square metre
+    /// (twenty people do not fit on the paper's 4 m circle with their goals clear). Unset: the
+    /// circle never grows.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub circle_grows_past: Option<usize>,
 }
 
 /// The people's motion model (`humans.model`).
@@ -383,6 +400,9 @@ impl FromStr for CrowdModel {
     }
 }
 
+/// The most people `humans.count_max` and `humans.slots` accept.
+pub const MAX_PEOPLE: usize = 40;
+
 /// `humans.social_force_fraction`'s default.
 pub const DEFAULT_SOCIAL_FORCE_FRACTION: f64 = 0.5;
 
@@ -418,6 +438,9 @@ impl Default for HumanConfig {
             model: CrowdModel::Orca,
             social_force_fraction: DEFAULT_SOCIAL_FORCE_FRACTION,
             visible_prob: 1.0,
+            count_max: None,
+            slots: None,
+            circle_grows_past: None,
         }
     }
 }
@@ -1090,6 +1113,24 @@ impl SimConfig {
             ));
         }
         self.social_force.check(c);
+        if let Some(max) = h.count_max {
+            if max < h.count || max > MAX_PEOPLE {
+                c.0.push(format!(
+                    "humans.count_max ({max}) must be in humans.count ({})..={MAX_PEOPLE}",
+                    h.count
+                ));
+            }
+        }
+        if let Some(n) = h.circle_grows_past {
+            c.at_least("humans.circle_grows_past", n, 1);
+        }
+        if let Some(slots) = h.slots {
+            if slots == 0 || slots > MAX_PEOPLE {
+                c.0.push(format!(
+                    "humans.slots ({slots}) must be in 1..={MAX_PEOPLE}"
+                ));
+            }
+        }
         if h.standing > h.count {
             c.0.push(format!(
                 "humans.standing ({}) must not exceed humans.count ({})",
@@ -1164,7 +1205,8 @@ impl SimConfig {
     /// paper's six; person slots plus obstacle sectors among walls.
     pub fn entities(&self, setting: Setting) -> usize {
         match self.people_slots(setting.env) {
-            Some(slots) => slots + self.walls.sensor.sectors,
+            Some(slots) if setting.env.is_walled() => slots + self.walls.sensor.sectors,
+            Some(slots) => slots.max(self.humans.count),
             None => self.humans.count,
         }
     }
@@ -1175,15 +1217,18 @@ impl SimConfig {
         self.humans.radius_m + self.orca.radius_margin_m
     }
 
-    /// The most people a walled layout has (`Some` for the walled kinds): the networks see
-    /// this many person slots, empty ones as "no return" points (`Env::static_entities_into`).
+    /// The most people a walled layout has (`Some` for the walled kinds), or in the paper's
+    /// settings `humans.slots` / `humans.count_max` when set: the networks see this many person
+    /// slots, empty ones as "no return" points (`Env::static_entities_into`).
     pub fn people_slots(&self, env: EnvKind) -> Option<usize> {
         match env {
             EnvKind::Corridor => Some(self.walls.corridor.people),
             EnvKind::Doorway => Some(self.walls.doorway.people),
             EnvKind::Room => Some(self.walls.room.people_max),
             EnvKind::Pillars => Some(self.walls.pillars.people),
-            EnvKind::Env1 | EnvKind::Env2 | EnvKind::Env3 => None,
+            EnvKind::Env1 | EnvKind::Env2 | EnvKind::Env3 => {
+                self.humans.slots.or(self.humans.count_max)
+            }
         }
     }
 

@@ -269,23 +269,26 @@ impl Env {
         self.walls.as_ref()
     }
 
-    /// The static entities the robot sees now, appended to `out`; nothing on an open floor.
-    /// Among walls: first one "no return" point per person slot left empty (the room has 5–8
+    /// The static entities the robot sees now, appended to `out`; nothing on an open floor
+    /// unless its crowd size varies (`humans.count_max`: the empty person slots). Among walls:
+    /// first one "no return" point per person slot left empty (the room has 5–8
     /// people and the networks a fixed number of entities per run: [`SimConfig::people_slots`]),
     /// then the sensor's obstacle points ([`crate::walled::obstacle_points`]). A "no return" point
     /// is what an empty sensor sector reads: at the sensor's range, here straight behind.
     pub fn static_entities_into(&self, out: &mut Vec<Vec2>) {
-        let Some(w) = &self.walls else {
+        let Some(slots) = self.cfg.people_slots(self.setting.env) else {
             return;
         };
         let sensor = &self.cfg.walls.sensor;
         let (pose, heading) = (self.robot.position, self.robot.heading_rad);
-        let slots = self.cfg.people_slots(self.setting.env).unwrap_or(0);
         let behind = pose - crate::geom::heading(heading) * sensor.range_m;
         out.extend(std::iter::repeat_n(
             behind,
             slots.saturating_sub(self.humans.len()),
         ));
+        let Some(w) = &self.walls else {
+            return;
+        };
         out.extend(crate::walled::obstacle_points(
             w.map(),
             sensor,

@@ -7,6 +7,9 @@ use std::sync::Arc;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
+/// The ChaCha stream an episode's crowd size is drawn from (`humans.count_max`).
+const CROWD_SIZE_STREAM: u64 = 0x5ea7;
+
 use crate::config::{EnvKind, Setting, SimConfig};
 use crate::geom::{heading, Vec2};
 use crate::robot::RobotState;
@@ -102,6 +105,16 @@ impl Scenario {
         }
         let robot = initial_robot(cfg);
         let h = &cfg.humans;
+        // A crowd of any size draws its count from a stream of its own, so that a config
+        // without `count_max` draws exactly what it always drew.
+        let count = match h.count_max {
+            Some(max) if max > h.count => {
+                let mut r = ChaCha8Rng::seed_from_u64(seed);
+                r.set_stream(CROWD_SIZE_STREAM);
+                r.gen_range(h.count..=max)
+            }
+            _ => h.count,
+        };
         let standing_count = match setting.env {
             EnvKind::Env1 => 0,
             EnvKind::Env2 => h.standing,
@@ -151,7 +164,7 @@ impl Scenario {
                             break;
                         }
                     }
-                    found.ok_or_else(|| too_crowded(h.count - standing_count + k))?
+                    found.ok_or_else(|| too_crowded(count - standing_count + k))?
                 }
             };
             placed.push(Placed {
@@ -170,8 +183,14 @@ impl Scenario {
         }
 
         // Dynamic humans: circle crossing.
-        let dynamic_count = h.count - standing_count;
-        let mut humans = Vec::with_capacity(h.count);
+        let dynamic_count = count - standing_count;
+        let circle_radius_m = match h.circle_grows_past {
+            Some(past) if dynamic_count > past => {
+                h.circle_radius_m * (dynamic_count as f64 / past as f64).sqrt()
+            }
+            _ => h.circle_radius_m,
+        };
+        let mut humans = Vec::with_capacity(count);
         for k in 0..dynamic_count {
             let mut found = None;
             for _ in 0..h.max_spawn_attempts {
@@ -180,7 +199,7 @@ impl Scenario {
                     (rng.gen::<f64>() * 2.0 - 1.0) * h.start_noise_m,
                     (rng.gen::<f64>() * 2.0 - 1.0) * h.start_noise_m,
                 );
-                let p = heading(angle) * h.circle_radius_m + noise;
+                let p = heading(angle) * circle_radius_m + noise;
                 if clear_of(&placed, p, h.radius_m, h.spawn_gap_m) {
                     found = Some(p);
                     break;
@@ -274,6 +293,71 @@ mod tests {
                 }
             }
         }
+    }
+
+    #[test]
+    fn a_crowd_of_any_size_draws_its_count_per_seed_and_the_env_pads_the_rows() {
+        let mut cfg = SimConfig::default();
+        cfg.humans.count = 5;
+        cfg.humans.count_max = Some(12);
+        cfg.validate().unwrap();
+        let mut seen = std::collections::BTreeSet::new();
+        for setting in [Setting::ALL[0], Setting::ALL[4]] {
+            let standing = if setting.env == EnvKind::Env1 { 0 } else { 5 };
+            for seed in 0..200 {
+                let sc = Scenario::generate(&cfg, setting, seed).unwrap();
+                let n = sc.humans.len();
+                assert!((5..=12).contains(&n), "{setting} seed {seed}: {n} people");
+                assert_eq!(sc.humans.iter().filter(|h| h.standing).count(), standing);
+                assert_eq!(
+                    Scenario::generate(&cfg, setting, seed).unwrap().humans,
+                    sc.humans,
+                    "the same seed, the same crowd"
+                );
+                seen.insert(n);
+                // The networks see 12 people rows whatever the count: the env pads the rest.
+                let env = crate::Env::new(cfg.clone(), setting, seed).unwrap();
+                let mut pad = Vec::new();
+                env.static_entities_into(&mut pad);
+                assert_eq!(n + pad.len(), 12);
+                assert_eq!(cfg.entities(setting), 12);
+            }
+        }
+        assert_eq!(seen.len(), 8, "every count from 5 to 12 is drawn: {seen:?}");
+        // Without a range, the scenarios are the ones drawn before ranges existed.
+        let plain = SimConfig::default();
+        let mut ranged = plain.clone();
+        ranged.humans.count_max = Some(plain.humans.count);
+        for seed in 0..20 {
+            assert_eq!(
+                Scenario::generate(&plain, Setting::ALL[0], seed)
+                    .unwrap()
+                    .humans,
+                Scenario::generate(&ranged, Setting::ALL[0], seed)
+                    .unwrap()
+                    .humans
+            );
+        }
+        // Past `circle_grows_past` people the circle grows: 20 people start ~√2 × 4 m out.
+        let mut big = SimConfig::default();
+        big.humans.count = 20;
+        assert!(
+            Scenario::generate(&big, Setting::ALL[0], 1036).is_err(),
+            "20 on 4 m"
+        );
+        big.humans.circle_grows_past = Some(10);
+        let sc = Scenario::generate(&big, Setting::ALL[0], 1036).unwrap();
+        let noise = big.humans.start_noise_m * 2f64.sqrt();
+        for h in &sc.humans {
+            let r = h.position.norm();
+            assert!((r - 4.0 * 2f64.sqrt()).abs() <= noise + 1e-9, "{r}");
+        }
+        cfg.humans.count_max = Some(4);
+        let e = cfg.validate().unwrap_err().to_string();
+        assert!(
+            e.contains("humans.count_max (4) must be in humans.count (5)..=40"),
+            "{e}"
+        );
     }
 
     #[test]
