@@ -77,6 +77,12 @@ pub struct EvalArgs {
     /// (`humans.social_force_fraction` of them social force).
     #[arg(long, value_name = "MODEL", value_parser = parse_crowd)]
     pub crowd: Option<CrowdModel>,
+    /// Decide with the people shield over this many seconds, whatever the models were trained
+    /// with (`train.shield_s`; 0: off): an action that, held this long, meets a person walking
+    /// on at constant velocity is never chosen while another keeps clear [default: each
+    /// model's own].
+    #[arg(long, value_name = "SECONDS")]
+    pub shield_s: Option<f64>,
 }
 
 /// `--crowd`: a `humans.model` value.
@@ -127,6 +133,15 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
             bail!("{flag} must be in 0..={max}, got {v}");
         }
     }
+    if let Some(s) = args
+        .shield_s
+        .filter(|s| !(s.is_finite() && (0.0..=policy::method::MAX_SHIELD_S).contains(s)))
+    {
+        bail!(
+            "--shield-s must be in [0, {}] seconds, got {s}",
+            policy::method::MAX_SHIELD_S
+        );
+    }
     let settings = parse_settings(&args.settings)?;
     let crowd = Crowd {
         people: args.people,
@@ -159,6 +174,7 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
         planning_top_k: args.planning_top_k,
         planning_breadth: args.planning_breadth,
         crowd,
+        shield_s: args.shield_s,
     };
     let mut subjects = Vec::new();
     let per_subject = |plan: &EvalPlan| plan.settings.len() as u64 * args.episodes as u64;

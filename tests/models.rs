@@ -268,6 +268,10 @@ fn every_command_that_takes_a_checkpoint_takes_a_model_file() {
             .unwrap()
     };
     assert!(json_of("ev").get("crowd").is_none());
+    // The people shield: the report says the decisions had it; the trained default has none.
+    assert!(subj.get("shield_s").is_none(), "{subj}");
+    let shielded = eval_subject("ev-shield", &["--shield-s", "1.5"]);
+    assert_eq!(shielded["shield_s"], 1.5, "{shielded}");
     let crowded = eval_subject("ev-crowd", &["--people", "20", "--crowd", "social-force"]);
     assert_eq!(crowded["settings"][0]["episodes"], 3, "{crowded}");
     assert_eq!(
@@ -281,6 +285,14 @@ fn every_command_that_takes_a_checkpoint_takes_a_model_file() {
             "corridor places its own",
         ),
         (&["--crowd", "ballet"], "ballet"),
+        (
+            &["--shield-s", "-1"],
+            "--shield-s must be in [0, 5] seconds, got -1",
+        ),
+        (
+            &["--shield-s", "NaN"],
+            "--shield-s must be in [0, 5] seconds, got NaN",
+        ),
     ] {
         let mut a = vec!["eval", s(&model_path), "--episodes", "1"];
         a.extend_from_slice(args);

@@ -25,6 +25,8 @@ pub struct Subject<'a> {
     /// Second steps tried after each planned first step (`TrainConfig::planning_breadth`; 0:
     /// every action).
     pub planning_breadth: usize,
+    /// The people shield's horizon (`TrainConfig::shield_s`; 0: off).
+    pub shield_s: f64,
     /// Extra ORCA radius for the ORCA baseline.
     pub orca_safety_space_m: f64,
 }
@@ -45,6 +47,7 @@ impl<'a> Subject<'a> {
             terminal_previews: train.terminal_previews,
             planning_top_k: train.planning_top_k,
             planning_breadth: train.planning_breadth,
+            shield_s: train.shield_s,
             orca_safety_space_m: 0.0,
         }
     }
@@ -104,7 +107,8 @@ pub fn evaluate(
                     )
                     .with_terminal_previews(subject.terminal_previews)
                     .with_planning(subject.planning_top_k)
-                    .with_planning_breadth(subject.planning_breadth);
+                    .with_planning_breadth(subject.planning_breadth)
+                    .with_shield(subject.shield_s);
                     for &(s, k) in jobs.iter().skip(w).step_by(threads) {
                         let env = match &mut envs[s] {
                             Some(env) => env,

@@ -32,6 +32,7 @@ fn orca() -> Subject<'static> {
         terminal_previews: false,
         planning_top_k: 0,
         planning_breadth: 0,
+        shield_s: 0.0,
         orca_safety_space_m: 0.0,
     }
 }

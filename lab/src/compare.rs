@@ -94,6 +94,7 @@ pub fn load_sources(paths: &[PathBuf]) -> anyhow::Result<Vec<Sourced>> {
                     run_seed: cfg.as_ref().map(|c| c.run.seed),
                     planning_top_k: cfg.as_ref().map_or(0, |c| c.train.planning_top_k),
                     planning_breadth: cfg.as_ref().map_or(0, |c| c.train.planning_breadth),
+                    shield_s: cfg.as_ref().map_or(0.0, |c| c.train.shield_s),
                     trained_setting: cfg.map(|c| c.run.setting),
                     settings: r.settings,
                 };
@@ -615,6 +616,7 @@ mod tests {
                 run_seed: Some(seed),
                 planning_top_k: 0,
                 planning_breadth: 0,
+                shield_s: 0.0,
                 trained_setting: Some("env1-invisible".into()),
                 settings: vec![SettingReport::new("env1-invisible", &agg)],
             }],

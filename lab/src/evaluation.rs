@@ -31,6 +31,8 @@ pub struct EvalPlan {
     pub planning_breadth: Option<usize>,
     /// A crowd other than the one each policy was trained with (`fsrl eval --people / --crowd`).
     pub crowd: Crowd,
+    /// Overrides every model's `train.shield_s` (`fsrl eval --shield-s`).
+    pub shield_s: Option<f64>,
 }
 
 /// The most moving people `fsrl eval --people` accepts.
@@ -134,6 +136,7 @@ pub fn evaluate_orca(
         terminal_previews: false,
         planning_top_k: 0,
         planning_breadth: 0,
+        shield_s: 0.0,
         orca_safety_space_m: plan.orca_safety_space_m,
     };
     let settings = evaluate_in_crowd(subject, sim, plan, done)?;
@@ -147,6 +150,7 @@ pub fn evaluate_orca(
         trained_setting: None,
         planning_top_k: 0,
         planning_breadth: 0,
+        shield_s: 0.0,
         settings,
     })
 }
@@ -187,6 +191,7 @@ impl LoadedPolicy {
             orca_safety_space_m: plan.orca_safety_space_m,
             planning_top_k: plan.planning_top_k.unwrap_or(learned.planning_top_k),
             planning_breadth: plan.planning_breadth.unwrap_or(learned.planning_breadth),
+            shield_s: plan.shield_s.unwrap_or(learned.shield_s),
             ..learned
         };
         let settings = evaluate_in_crowd(subject, &model.sim, plan, done)
@@ -201,6 +206,7 @@ impl LoadedPolicy {
             trained_setting: Some(model.setting.name().to_string()),
             planning_top_k: subject.planning_top_k,
             planning_breadth: subject.planning_breadth,
+            shield_s: subject.shield_s,
             settings,
         })
     }
@@ -409,6 +415,7 @@ mod tests {
             planning_top_k: None,
             planning_breadth: None,
             crowd: c(20),
+            shield_s: None,
         };
         let r = evaluate_orca(&sim, &plan, &|| {}).unwrap();
         assert!(r.settings.iter().all(|s| s.episodes == 3));
@@ -430,6 +437,7 @@ mod tests {
             planning_top_k: None,
             planning_breadth: None,
             crowd: Crowd::default(),
+            shield_s: None,
         };
         let done = AtomicUsize::new(0);
         let one = evaluate_orca(&sim, &plan(1), &|| {

@@ -343,6 +343,7 @@ mod tests {
             run_seed: seed,
             planning_top_k: 0,
             planning_breadth: 0,
+            shield_s: 0.0,
             trained_setting: None,
             settings: results
                 .iter()

@@ -643,6 +643,7 @@ mod tests {
             run_seed: Some(0),
             planning_top_k: 0,
             planning_breadth: 0,
+            shield_s: 0.0,
             trained_setting: None,
             settings: settings
                 .iter()

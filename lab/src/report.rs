@@ -679,11 +679,18 @@ pub struct SubjectReport {
     /// The second steps tried after each planned first step (absent: 0, every action).
     #[serde(default, skip_serializing_if = "is_zero")]
     pub planning_breadth: usize,
+    /// The people shield's horizon the decisions had (absent: 0, off; `train.shield_s`).
+    #[serde(default, skip_serializing_if = "is_zero_f64")]
+    pub shield_s: f64,
     pub settings: Vec<SettingReport>,
 }
 
 fn is_zero(n: &usize) -> bool {
     *n == 0
+}
+
+fn is_zero_f64(v: &f64) -> bool {
+    *v == 0.0
 }
 
 impl SubjectReport {

@@ -287,6 +287,7 @@ pub fn evaluate_snapshot(path: &Path, how: &Plan, k: usize, n: usize) -> anyhow:
         planning_top_k: None,
         planning_breadth: None,
         crowd: Default::default(),
+        shield_s: None,
     };
     let terminal = std::io::stderr().is_terminal();
     let done = AtomicU32::new(0);

@@ -133,6 +133,7 @@ pub fn run(
             planning_top_k: None,
             planning_breadth: None,
             crowd: variant.crowd(),
+            shield_s: None,
         };
         let report = |subjects| EvalReport {
             kind: EVAL_KIND.into(),

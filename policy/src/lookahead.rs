@@ -56,6 +56,11 @@ pub struct Lookahead {
     terminal: Vec<bool>,
     /// Per candidate of the last decision: its step touches a wall.
     walled: Vec<bool>,
+    /// The people shield's horizon (0: off; `train.shield_s`).
+    shield_s: f64,
+    /// Per candidate of the last decision: held for `shield_s`, it meets a person moving on at
+    /// constant velocity (people shield only).
+    threatened: Vec<bool>,
     /// Depth-2 planning over this many best first steps (0: the paper's one-step lookahead).
     planning_top_k: usize,
     /// The second steps planning tries after each first step: this many of the decision's best
@@ -114,6 +119,8 @@ impl Lookahead {
             terminal_previews: false,
             terminal: Vec::new(),
             walled: Vec::new(),
+            shield_s: 0.0,
+            threatened: Vec::new(),
             planning_top_k: 0,
             planning_breadth: 0,
             robot_next: Vec::new(),
@@ -152,6 +159,16 @@ impl Lookahead {
         } else {
             Vec::new()
         };
+        self
+    }
+
+    /// The people shield (issue 54; 0: off, the paper): a candidate whose velocity, held for
+    /// `horizon_s` from the robot's position, comes within touching distance of a person
+    /// walking on at their current velocity is never chosen while some candidate keeps clear
+    /// (with the walls' shield: walls first, they stay hard). Beyond the paper
+    /// (`train.shield_s`; docs/CROWDS.md).
+    pub fn with_shield(mut self, horizon_s: f64) -> Self {
+        self.shield_s = horizon_s;
         self
     }
 
@@ -223,6 +240,7 @@ impl Lookahead {
         self.rewards.clear();
         self.terminal.clear();
         self.walled.clear();
+        self.threatened.clear();
         self.robot_next.clear();
         for a in 0..n_actions {
             let eval = match self.model {
@@ -246,6 +264,14 @@ impl Lookahead {
             self.rewards.push(eval.reward.total);
             self.terminal.push(eval.outcome.is_terminal());
             self.walled.push(eval.wall_contact);
+            if self.shield_s > 0.0 {
+                self.threatened.push(threatens(
+                    &robot,
+                    eval.robot_next.velocity,
+                    env.humans(),
+                    self.shield_s,
+                ));
+            }
             if self.planning_top_k > 0 {
                 self.robot_next.push(eval.robot_next);
             }
@@ -261,6 +287,9 @@ impl Lookahead {
             );
         }
         shield_walls(&mut self.rewards, &self.walled);
+        if self.shield_s > 0.0 {
+            shield_people(&mut self.rewards, &self.threatened);
+        }
         let states = StateBatch::new(&self.batch, n_actions, self.obs.len())?;
         self.values.resize(n_actions, 0.0);
         net_values(
@@ -456,6 +485,35 @@ fn shield_walls(rewards: &mut [f64], walled: &[bool]) {
     }
 }
 
+/// Whether `robot`, moving from where it is at `velocity` for `horizon_s`, comes within
+/// touching distance of one of `humans` walking on at their velocities (exact closest approach
+/// of the two straight lines).
+fn threatens(robot: &RobotState, velocity: Vec2, humans: &[HumanState], horizon_s: f64) -> bool {
+    humans.iter().any(|h| {
+        let reach = robot.radius_m + h.radius_m;
+        sim::geom::closest_approach(
+            h.position - robot.position,
+            h.velocity - velocity,
+            horizon_s,
+        ) < reach
+    })
+}
+
+/// People are soft walls: while some candidate still open (reward not −∞ after the walls'
+/// shield) keeps clear of everyone, a threatened one is never chosen. When every open
+/// candidate is threatened, nothing changes: the network chooses among them as without the
+/// shield.
+fn shield_people(rewards: &mut [f64], threatened: &[bool]) {
+    let open = |r: &f64| *r != f64::NEG_INFINITY;
+    if rewards.iter().zip(threatened).any(|(r, &t)| open(r) && !t) {
+        for (r, &t) in rewards.iter_mut().zip(threatened) {
+            if t {
+                *r = f64::NEG_INFINITY;
+            }
+        }
+    }
+}
+
 /// A candidate's lookahead value: `r + discount·v`, or `r` for a terminal step when terminal
 /// previews are on.
 fn score(previews: bool, reward: f64, value: f32, terminal: bool, discount: f64) -> f64 {
@@ -563,6 +621,96 @@ mod tests {
             }
         }
         assert!(contacts_offered > 100, "{contacts_offered}");
+    }
+
+    /// The people shield (issue 54): along ORCA episodes of env1 driven by untrained networks,
+    /// the shielded decision never takes an action that meets a person within the horizon
+    /// while one keeps clear; the unshielded one does, and with every action threatened the
+    /// shield leaves the decision as it was.
+    #[test]
+    fn the_people_shield_vetoes_actions_that_meet_a_person_while_one_keeps_clear() {
+        let cfg = SimConfig::default();
+        let setting: Setting = "env1-invisible".parse().unwrap();
+        let horizon_s = 1.5;
+        let (mut vetoed, mut unshielded_threatened) = (0, 0);
+        for net_seed in 0..3u64 {
+            let net = ValueNet::new(NetConfig::sarl(), net_seed).unwrap();
+            for planning in [0, 4] {
+                let mut env = Env::new(cfg.clone(), setting, 7 + net_seed).unwrap();
+                let mut plain = Lookahead::new(0.9, HumanModel::Orca, HumanOrder::AsGiven)
+                    .with_planning(planning);
+                let mut shielded = Lookahead::new(0.9, HumanModel::Orca, HumanOrder::AsGiven)
+                    .with_planning(planning)
+                    .with_shield(horizon_s);
+                for _ in 0..40 {
+                    if env.outcome().is_terminal() {
+                        break;
+                    }
+                    let robot = *env.robot();
+                    let n = env.action_set().len();
+                    let threat: Vec<bool> = (0..n)
+                        .map(|a| {
+                            let v = env.preview(a).unwrap().robot_next.velocity;
+                            threatens(&robot, v, env.humans(), horizon_s)
+                        })
+                        .collect();
+                    let a = plain.decide(&mut env, &net).unwrap().action;
+                    let b = shielded.decide(&mut env, &net).unwrap().action;
+                    if threat.iter().all(|&t| t) {
+                        assert_eq!(a, b, "every action threatened: the shield changes nothing");
+                    } else {
+                        assert!(
+                            !threat[b],
+                            "net {net_seed}: shielded action {b} is threatened"
+                        );
+                        unshielded_threatened += usize::from(threat[a]);
+                        vetoed += threat.iter().filter(|&&t| t).count();
+                    }
+                    let action = env.orca_robot_action(0.0);
+                    env.step(action).unwrap();
+                }
+            }
+        }
+        assert!(vetoed > 100, "{vetoed}");
+        assert!(
+            unshielded_threatened > 0,
+            "the shield has something to change"
+        );
+    }
+
+    #[test]
+    fn a_threat_is_the_exact_closest_approach_of_two_straight_lines() {
+        let robot = RobotState {
+            position: Vec2::new(0.0, 0.0),
+            radius_m: 0.3,
+            ..*Env::new(SimConfig::default(), Setting::ALL[0], 1)
+                .unwrap()
+                .robot()
+        };
+        let person = |x: f64, vx: f64| HumanState {
+            position: Vec2::new(x, 0.0),
+            velocity: Vec2::new(vx, 0.0),
+            radius_m: 0.3,
+            ..sim::Scenario::generate(&SimConfig::default(), Setting::ALL[0], 1)
+                .unwrap()
+                .humans[0]
+        };
+        let ahead = Vec2::new(1.0, 0.0);
+        // 2 m apart closing at 2 m/s: touching (0.6 m) after 0.7 s.
+        assert!(threatens(&robot, ahead, &[person(2.0, -1.0)], 0.75));
+        assert!(!threatens(&robot, ahead, &[person(2.0, -1.0)], 0.65));
+        // Walking away, or passing 0.7 m to the side: never.
+        assert!(!threatens(&robot, ahead, &[person(2.0, 2.0)], 5.0));
+        let mut beside = person(2.0, -1.0);
+        beside.position.y = 0.7;
+        assert!(!threatens(&robot, ahead, &[beside], 5.0));
+        let mut rewards = vec![1.0, 2.0, f64::NEG_INFINITY];
+        shield_people(&mut rewards, &[false, true, false]);
+        assert_eq!(rewards, vec![1.0, f64::NEG_INFINITY, f64::NEG_INFINITY]);
+        // Only a walled (−∞) candidate keeps clear: nothing changes.
+        let mut rewards = vec![1.0, 2.0, f64::NEG_INFINITY];
+        shield_people(&mut rewards, &[true, true, false]);
+        assert_eq!(rewards, vec![1.0, 2.0, f64::NEG_INFINITY]);
     }
 
     /// The depth-2 value of one state written out by hand: every first step `a`, every second

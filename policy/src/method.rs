@@ -255,6 +255,13 @@ fn is_zero(n: &usize) -> bool {
     *n == 0
 }
 
+fn is_zero_f64(v: &f64) -> bool {
+    *v == 0.0
+}
+
+/// The longest people shield `train.shield_s` accepts, in seconds.
+pub const MAX_SHIELD_S: f64 = 5.0;
+
 fn is_true(b: &bool) -> bool {
     *b
 }
@@ -355,6 +362,12 @@ pub struct TrainConfig {
     /// only (validation, evaluation, serving). Not written when true.
     #[serde(skip_serializing_if = "is_true")]
     pub planning_in_training: bool,
+    /// The people shield's horizon in seconds (`Lookahead::with_shield`; 0, the paper: off): a
+    /// candidate that, held this long, meets a person walking on at constant velocity is never
+    /// chosen while another keeps clear, in training and at decision time. Beyond the paper
+    /// (issue 54, docs/CROWDS.md); not written when 0.
+    #[serde(skip_serializing_if = "is_zero_f64")]
+    pub shield_s: f64,
     pub imitation: ImitationConfig,
     pub rl: RlConfig,
     /// Write a checkpoint every this many RL episodes (0: only at the end).
@@ -510,6 +523,7 @@ impl Default for TrainConfig {
             planning_top_k: 0,
             planning_breadth: 0,
             planning_in_training: true,
+            shield_s: 0.0,
             imitation: ImitationConfig::default(),
             rl: RlConfig::default(),
             checkpoint_every_episodes: 500,
@@ -532,6 +546,7 @@ impl TrainConfig {
             .with_terminal_previews(self.terminal_previews)
             .with_planning(self.planning_top_k)
             .with_planning_breadth(self.planning_breadth)
+            .with_shield(self.shield_s)
     }
 
     /// The actors' lookahead: as [`TrainConfig::lookahead`], without planning unless
@@ -617,6 +632,12 @@ impl TrainConfig {
                 "train.planning_breadth must be in 0..={}, got {}",
                 crate::lookahead::MAX_PLANNING_TOP_K,
                 self.planning_breadth
+            ));
+        }
+        if !(self.shield_s.is_finite() && (0.0..=MAX_SHIELD_S).contains(&self.shield_s)) {
+            p.push(format!(
+                "train.shield_s must be in [0, {MAX_SHIELD_S}] seconds, got {}",
+                self.shield_s
             ));
         }
         if self.planning_breadth > 0 && self.planning_top_k == 0 {
@@ -766,6 +787,25 @@ mod tests {
             c.rl.n_step = n;
             let p = c.problems();
             assert!(p.len() == 1 && p[0].contains("train.rl.n_step"), "{p:?}");
+        }
+    }
+
+    #[test]
+    fn the_people_shield_is_read_checked_and_absent_when_off() {
+        let parsed: TrainConfig = toml::from_str("shield_s = 1.5\n").unwrap();
+        assert_eq!(parsed.shield_s, 1.5);
+        assert!(parsed.problems().is_empty());
+        assert!(toml::to_string(&parsed).unwrap().contains("shield_s = 1.5"));
+        assert!(!toml::to_string(&TrainConfig::default())
+            .unwrap()
+            .contains("shield_s"));
+        for bad in [-0.5, 5.5, f64::NAN] {
+            let c = TrainConfig {
+                shield_s: bad,
+                ..TrainConfig::default()
+            };
+            let p = c.problems();
+            assert!(p.len() == 1 && p[0].contains("train.shield_s"), "{p:?}");
         }
     }
 
