@@ -146,7 +146,6 @@ fn plan(settings: Vec<Setting>, episodes: u32) -> EvalPlan {
         orca_safety_space_m: 0.0,
         planning_top_k: None,
         planning_breadth: None,
-        shield_s: 0.0,
         crowd: Default::default(),
         shield_s: None,
     }
