@@ -286,7 +286,7 @@ fn every_command_that_takes_a_checkpoint_takes_a_model_file() {
         ),
         (&["--crowd", "ballet"], "ballet"),
         (
-            &["--shield-s", "-1"],
+            &["--shield-s=-1"],
             "--shield-s must be in [0, 5] seconds, got -1",
         ),
         (
