@@ -19,12 +19,13 @@ const PAGES: [&str; 5] = [
 ];
 
 /// The pages whose relative links are checked (the summary of the reproduction links into it).
-const LINKED_PAGES: [&str; 6] = [
+const LINKED_PAGES: [&str; 7] = [
     "README.md",
     "docs/TRAINING.md",
     "docs/DISTRIBUTED.md",
     "docs/EVALUATION.md",
     "docs/REPRODUCTION.md",
+    "docs/CROWDS.md",
     "deploy/ROBOT.md",
 ];
 
