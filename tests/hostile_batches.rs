@@ -34,7 +34,9 @@ const IMITATION_HUGE: u64 = 6;
 /// Fresh actor ids, one more than the learner keeps state for
 /// (`proto::control::MAX_CREDIT_GRANTS`).
 const FRESH_IDS: u32 = 4097;
-const RL_EPISODES: u64 = 25;
+/// Long enough that actor 1 is still training after the 8194 forged messages have been sent
+/// and counted (with 25, a loaded CI machine once saw the run end first, 2026-12-07).
+const RL_EPISODES: u64 = 120;
 /// The index every episode sent during imitation carries: should one arrive after the warm
 /// start, it is not actor 0's first (0) and is refused as out of order, creating no state.
 const IMITATION_EPISODE: u64 = 7;
