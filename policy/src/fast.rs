@@ -3,7 +3,8 @@
 //! Tests assert both agree to 1e-5. Where the CPU has AVX-512, SARL's layers run through the
 //! packed kernels of [`crate::kernels::dense_packed`] instead (weights packed once per set of
 //! weights, [`PackedSarl`]), which sum every element exactly as `gemm` does: the values are the
-//! `gemm` path's bit for bit (`net::tests::packed_values_are_the_reference_ones`; issue 54).
+//! `gemm` path's bit for bit (`net::tests::packed_values_are_the_reference_ones`; issue 54),
+//! leaving out the inputs a ReLU zeroed in every row of a register tile.
 //!
 //! Two exact rewrites of CrowdNav's SARL keep the work down (both are also used by the dfdx
 //! graph, so training and inference compute the same function):
@@ -109,7 +110,8 @@ fn sized(out: &mut Vec<f32>, len: usize) {
 }
 
 /// `out (rows × lin.out) = act(x Wᵀ + b)`, `x` rows of stride `ldx`; through the packed
-/// kernels when `packed` holds the layer (the same values bit for bit).
+/// kernels when `packed` holds the layer (the same values bit for bit; `alike`: rows per
+/// sample, see [`dense_packed`]).
 #[allow(clippy::too_many_arguments)]
 fn dense(
     x: &[f32],
@@ -120,12 +122,13 @@ fn dense(
     relu: bool,
     out: &mut Vec<f32>,
     packed: Option<&PackedSarl>,
+    alike: usize,
 ) {
     let n = lin.out_dim();
     let bias = &p[lin.b.offset..lin.b.offset + n];
     if let Some(pw) = packed.and_then(|pk| pk.get(lin.w)) {
         sized(out, rows * n);
-        dense_packed(rows, x, ldx, pw, bias, usize::MAX, relu, out);
+        dense_packed(rows, x, ldx, pw, bias, usize::MAX, relu, out, alike);
         return;
     }
     out.clear();
@@ -173,7 +176,7 @@ pub(crate) fn softmax_shift(scores: &[f32]) -> Option<f32> {
 }
 
 /// Runs an MLP chain on `x`, each layer into `bufs[k]`; ReLU after every layer except the last
-/// unless `last_relu`. Returns the output width.
+/// unless `last_relu`. Returns the output width. `alike`: rows per sample (see [`dense_packed`]).
 #[allow(clippy::too_many_arguments)]
 fn mlp_chain(
     x: &[f32],
@@ -184,6 +187,7 @@ fn mlp_chain(
     last_relu: bool,
     bufs: &mut [Vec<f32>],
     packed: Option<&PackedSarl>,
+    alike: usize,
 ) -> usize {
     let mut width = ldx;
     for (k, lin) in layers.iter().enumerate() {
@@ -191,7 +195,7 @@ fn mlp_chain(
         let (done, rest) = bufs.split_at_mut(k);
         let input: &[f32] = if k == 0 { x } else { &done[k - 1] };
         let ld = if k == 0 { ldx } else { width };
-        dense(input, rows, ld, lin, p, relu, &mut rest[0], packed);
+        dense(input, rows, ld, lin, p, relu, &mut rest[0], packed, alike);
         width = lin.out_dim();
     }
     width
@@ -235,6 +239,7 @@ pub(crate) fn sarl_forward(
         true,
         mlp1_b,
         packed,
+        n,
     );
     let e: &[f32] = &mlp1_b[n1 - 1];
 
@@ -262,7 +267,7 @@ pub(crate) fn sarl_forward(
         w: att0.w.cols(d_e, 2 * d_e),
         b: att0.b,
     };
-    dense(mean, b, d_e, &half, p, false, g, packed);
+    dense(mean, b, d_e, &half, p, false, g, packed, 1);
 
     // Attention layer 0 on the e half, plus g of the row's sample; then the other layers.
     let a0 = &mut att_b[0];
@@ -270,7 +275,7 @@ pub(crate) fn sarl_forward(
     if let Some(pw) = packed.and_then(|pk| pk.get(e_half)) {
         // g of row r's sample is row r / n of g; the ReLU in the same pass.
         sized(a0, rows * d_a0);
-        dense_packed(rows, e, d_e, pw, g, n, na > 1, a0);
+        dense_packed(rows, e, d_e, pw, g, n, na > 1, a0, n);
     } else {
         attention_e_half(e, g, rows, n, d_e, att0, e_half, p, na > 1, a0);
     }
@@ -285,6 +290,7 @@ pub(crate) fn sarl_forward(
             false,
             others,
             packed,
+            n,
         );
     }
     let scores: &[f32] = &att_b[na - 1];
@@ -372,7 +378,7 @@ fn softmax_pool_and_head(
 
     // z = mlp2 without its last layer (ReLU after each); pooled = Σ_i w_i z_i.
     let (z, d_z): (&[f32], usize) = if n2 > 1 {
-        let d = mlp_chain(e, rows, d_e, &ix.mlp2[..n2 - 1], p, true, mlp2_b, packed);
+        let d = mlp_chain(e, rows, d_e, &ix.mlp2[..n2 - 1], p, true, mlp2_b, packed, n);
         (&mlp2_b[n2 - 2], d)
     } else {
         (e, d_e)
@@ -394,7 +400,7 @@ fn softmax_pool_and_head(
     }
     // h = pooled W2ᵀ + b (mlp2's last layer, no ReLU).
     let last2 = &ix.mlp2[n2 - 1];
-    dense(pooled, b, d_z, last2, p, false, hbuf, packed);
+    dense(pooled, b, d_z, last2, p, false, hbuf, packed, 1);
     let d_h = last2.out_dim();
 
     // Value head on [robot | h].
@@ -404,7 +410,7 @@ fn softmax_pool_and_head(
         head.extend_from_slice(states.robot(s));
         head.extend_from_slice(&hbuf[s * d_h..(s + 1) * d_h]);
     }
-    mlp_chain(head, b, d_in, &ix.mlp3, p, false, mlp3_b, packed);
+    mlp_chain(head, b, d_in, &ix.mlp3, p, false, mlp3_b, packed, 1);
     out.copy_from_slice(&mlp3_b[n3 - 1][..b]);
 }
 
@@ -535,7 +541,7 @@ pub(crate) fn lstm_forward(
         head.extend_from_slice(states.robot(s));
         head.extend_from_slice(&h[s * hd..(s + 1) * hd]);
     }
-    mlp_chain(head, b, d_in, &ix.mlp, p, false, mlp_b, None);
+    mlp_chain(head, b, d_in, &ix.mlp, p, false, mlp_b, None, 1);
     out.copy_from_slice(&mlp_b[nm - 1][..b]);
 }
 
