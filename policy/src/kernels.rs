@@ -252,7 +252,7 @@ pub(crate) fn dense_packed(
         "dense_packed: init too short"
     );
     assert!(out.len() >= m * n, "dense_packed: output too short");
-    let alike = if alike > 1 && m % alike == 0 {
+    let alike = if alike > 1 && m.is_multiple_of(alike) {
         alike
     } else {
         1
