@@ -333,6 +333,33 @@ fn every_command_that_takes_a_checkpoint_takes_a_model_file() {
         .modified()
         .unwrap();
     assert_eq!(before, after, "an up-to-date report is not evaluated again");
+    // Another model into the same directory: its rows join the table, the first model's stay
+    // (and are not evaluated again).
+    let other = dir.join("models/other-s11.fsrlm");
+    ok(&[
+        "export-model",
+        s(&model_path),
+        "--out",
+        s(&other),
+        "--check-episodes",
+        "2",
+    ]);
+    ok(&["robustness", s(&other), "--episodes", "1", "--out", s(&rb)]);
+    let report: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(rb.join("orca-20/env1-invisible/eval.json")).unwrap(),
+    )
+    .unwrap();
+    let checkpoints: Vec<&str> = report["subjects"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|s| s["checkpoint"].as_str().unwrap())
+        .collect();
+    assert_eq!(checkpoints, [s(&model_path), s(&other)], "{report}");
+    let table: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(rb.join("robustness.json")).unwrap())
+            .unwrap();
+    assert_eq!(table["rows"][0]["cells"][3]["policies"], 2, "{table}");
     let wins = model
         .check
         .iter()

@@ -1,8 +1,10 @@
 //! Issue 54's robustness table: trained policies tested, without retraining, in crowds other
 //! than their own: 5, 10, 15 and 20 moving people, all ORCA or all social force
 //! ([`VARIANTS`]). Each policy is tested in the setting it was trained in, the ORCA robot in all
-//! six; [`run`] writes one `fsrl eval` report per variant and setting (`DIR/<variant>/<setting>/`,
-//! skipped when it already holds the same policies: an interrupted run resumes) and
+//! six; [`run`] writes one `fsrl eval` report per variant and setting (`DIR/<variant>/<setting>/`;
+//! the policies a report already holds on the same seeds and crowd are kept and not evaluated
+//! again, the others are added one by one: an interrupted run resumes, and a run with more
+//! models adds their rows to the table instead of replacing it) and
 //! [`Table::collect`] reads them back into one table, the mean over each method's seeds.
 
 use std::collections::BTreeMap;
@@ -144,8 +146,17 @@ pub fn run(
         };
         for (setting, policies) in by_setting.values() {
             let out = dir.join(variant.dir_name()).join(setting.name());
-            let shas: Vec<&str> = policies.iter().map(|p| p.sha256.as_str()).collect();
-            if up_to_date(&out, plan, &shas) {
+            let mut subjects = earlier_subjects(&out, plan, &variant.crowd().label());
+            let missing: Vec<&LoadedPolicy> = policies
+                .iter()
+                .copied()
+                .filter(|p| {
+                    !subjects
+                        .iter()
+                        .any(|s| s.checkpoint_sha256.as_deref() == Some(p.sha256.as_str()))
+                })
+                .collect();
+            if missing.is_empty() {
                 continue;
             }
             let plan_s = EvalPlan {
@@ -154,17 +165,16 @@ pub fn run(
             };
             progress(
                 &format!("{} {}", variant.dir_name(), setting),
-                policies.len() as u64 * u64::from(plan.episodes),
+                missing.len() as u64 * u64::from(plan.episodes),
             );
-            let subjects = policies
-                .iter()
-                .map(|p| p.evaluate(&plan_s, done))
-                .collect::<anyhow::Result<Vec<_>>>()?;
-            report(subjects).write(&out)?;
+            for p in missing {
+                subjects.push(p.evaluate(&plan_s, done)?);
+                report(subjects.clone()).write(&out)?;
+            }
         }
         if let Some(sim) = plan.orca_sim {
             let out = dir.join(variant.dir_name()).join("orca");
-            if up_to_date(&out, plan, &[]) {
+            if up_to_date(&out, plan, &variant.crowd().label()) {
                 continue;
             }
             let plan_o = EvalPlan {
@@ -181,26 +191,38 @@ pub fn run(
     Ok(())
 }
 
-/// Whether `out/eval.json` already holds these policies (none: the ORCA robot) on these seeds.
-fn up_to_date(out: &Path, plan: &Plan<'_>, shas: &[&str]) -> bool {
-    let Ok(text) = std::fs::read_to_string(out.join("eval.json")) else {
-        return false;
-    };
-    let Ok(r) = serde_json::from_str::<EvalReport>(&text) else {
-        return false;
-    };
-    let have: Vec<&str> = r
-        .subjects
-        .iter()
-        .map(|s| s.checkpoint_sha256.as_deref().unwrap_or(""))
-        .collect();
-    r.episodes_per_setting == plan.episodes
+/// The report in `out`, if it is one of these seeds, episodes and crowd.
+fn earlier_report(out: &Path, plan: &Plan<'_>, crowd: &Option<String>) -> Option<EvalReport> {
+    let text = std::fs::read_to_string(out.join("eval.json")).ok()?;
+    let r = serde_json::from_str::<EvalReport>(&text).ok()?;
+    (r.episodes_per_setting == plan.episodes
         && r.test_seed_start == plan.seed_start
-        && if shas.is_empty() {
-            r.subjects.len() == 1 && r.subjects[0].method == "orca"
-        } else {
-            have == shas
-        }
+        && &r.crowd == crowd)
+        .then_some(r)
+}
+
+/// The policies' subjects `out/eval.json` already holds on these seeds and in this crowd (every
+/// one of them, also those not among this run's models: their rows stay in the table); none if
+/// the file is missing, unreadable, or of other seeds or another crowd.
+fn earlier_subjects(
+    out: &Path,
+    plan: &Plan<'_>,
+    crowd: &Option<String>,
+) -> Vec<crate::report::SubjectReport> {
+    earlier_report(out, plan, crowd)
+        .map(|r| {
+            r.subjects
+                .into_iter()
+                .filter(|s| s.checkpoint_sha256.is_some())
+                .collect()
+        })
+        .unwrap_or_default()
+}
+
+/// Whether `out/eval.json` already holds the ORCA robot on these seeds.
+fn up_to_date(out: &Path, plan: &Plan<'_>, crowd: &Option<String>) -> bool {
+    earlier_report(out, plan, crowd)
+        .is_some_and(|r| r.subjects.len() == 1 && r.subjects[0].method == "orca")
 }
 
 /// One cell: a method in a setting and a crowd, over its seeds.
