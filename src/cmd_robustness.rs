@@ -27,7 +27,8 @@ pub struct RobustnessArgs {
     /// First test seed.
     #[arg(long, default_value_t = 1000)]
     pub seed_start: u64,
-    /// Where the reports go (kept: a second run evaluates only what is missing).
+    /// Where the reports go (kept: a second run evaluates only what is missing; other models
+    /// add their rows).
     #[arg(long, default_value = "robustness")]
     pub out: PathBuf,
     /// Worker threads [default: all cores].
