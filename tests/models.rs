@@ -345,10 +345,7 @@ fn every_command_that_takes_a_checkpoint_takes_a_model_file() {
         "2",
     ]);
     ok(&["robustness", s(&other), "--episodes", "1", "--out", s(&rb)]);
-    let report: serde_json::Value = serde_json::from_str(
-        &std::fs::read_to_string(rb.join("orca-20/env1-invisible/eval.json")).unwrap(),
-    )
-    .unwrap();
+    let report = json_of("rb/orca-20/env1-invisible");
     let checkpoints: Vec<&str> = report["subjects"]
         .as_array()
         .unwrap()
