@@ -83,6 +83,12 @@ pub struct EvalArgs {
     /// model's own].
     #[arg(long, value_name = "SECONDS")]
     pub shield_s: Option<f64>,
+    /// Decide with the progress tie-break, whatever the models were trained with
+    /// (`train.progress_tolerance`; 0: off): among the actions whose lookahead value is within
+    /// this much of the best, the one whose step ends nearest the goal [default: each model's
+    /// own].
+    #[arg(long, value_name = "VALUE")]
+    pub progress_tolerance: Option<f64>,
 }
 
 /// `--crowd`: a `humans.model` value.
@@ -142,6 +148,15 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
             policy::method::MAX_SHIELD_S
         );
     }
+    if let Some(t) = args
+        .progress_tolerance
+        .filter(|t| !(t.is_finite() && (0.0..=policy::method::MAX_PROGRESS_TOLERANCE).contains(t)))
+    {
+        bail!(
+            "--progress-tolerance must be in [0, {}], got {t}",
+            policy::method::MAX_PROGRESS_TOLERANCE
+        );
+    }
     let settings = parse_settings(&args.settings)?;
     let crowd = Crowd {
         people: args.people,
@@ -175,6 +190,7 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
         planning_breadth: args.planning_breadth,
         crowd,
         shield_s: args.shield_s,
+        progress_tolerance: args.progress_tolerance,
     };
     let mut subjects = Vec::new();
     let per_subject = |plan: &EvalPlan| plan.settings.len() as u64 * args.episodes as u64;

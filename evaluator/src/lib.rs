@@ -27,6 +27,8 @@ pub struct Subject<'a> {
     pub planning_breadth: usize,
     /// The people shield's horizon (`TrainConfig::shield_s`; 0: off).
     pub shield_s: f64,
+    /// The progress tie-break's tolerance (`TrainConfig::progress_tolerance`; 0: off).
+    pub progress_tolerance: f64,
     /// Extra ORCA radius for the ORCA baseline.
     pub orca_safety_space_m: f64,
 }
@@ -48,6 +50,7 @@ impl<'a> Subject<'a> {
             planning_top_k: train.planning_top_k,
             planning_breadth: train.planning_breadth,
             shield_s: train.shield_s,
+            progress_tolerance: train.progress_tolerance,
             orca_safety_space_m: 0.0,
         }
     }
@@ -108,7 +111,8 @@ pub fn evaluate(
                     .with_terminal_previews(subject.terminal_previews)
                     .with_planning(subject.planning_top_k)
                     .with_planning_breadth(subject.planning_breadth)
-                    .with_shield(subject.shield_s);
+                    .with_shield(subject.shield_s)
+                    .with_progress_tolerance(subject.progress_tolerance);
                     for &(s, k) in jobs.iter().skip(w).step_by(threads) {
                         let env = match &mut envs[s] {
                             Some(env) => env,

@@ -411,14 +411,17 @@ impl Links {
 }
 
 /// Which weights are due: a report every `opts.every_episodes` RL episodes and a validation
-/// point every `validation_every_episodes`, each at most once per version.
+/// point every `validation_every_episodes`; a report at most once per version, a validation
+/// at most once per version and RL episode count.
 struct Schedule {
     every: u64,
     next_due: u64,
     evaluated: Option<u64>,
     val_every: u64,
     next_val_due: u64,
-    validated: Option<u64>,
+    /// The last validated weights: version and RL episodes (the run's final weights may repeat
+    /// an earlier version with more episodes, see [`Evaluator::newest_weights`]).
+    validated: Option<(u64, u64)>,
     /// The last version looked at: when the weights go back (a learner restarted from an older
     /// checkpoint, or a rogue high version that was followed), the due points go back with
     /// them, so no version, however high, silences evaluation or validation until the learner
@@ -484,12 +487,12 @@ impl Schedule {
         self.val_every > 0
             && spec.train.validation_episodes > 0
             && version >= il_epochs
-            && self.validated != Some(version)
+            && self.validated != Some((version, trained))
             && (trained >= self.next_val_due || finished)
     }
 
     fn validated(&mut self, version: u64, trained: u64) {
-        self.validated = Some(version);
+        self.validated = Some((version, trained));
         self.next_val_due = due_after(trained, self.val_every);
     }
 
@@ -604,28 +607,39 @@ impl Evaluator<'_> {
     }
 
     /// The newest weights, or `None` after waiting for some. The learner sends its final
-    /// weights before `Finished`, whose header names their version: until weights at least that
-    /// new are here, the run's last weights are not (an error after
-    /// [`FINAL_WEIGHTS_PATIENCE`]).
+    /// weights before `Finished`, whose header names their version and whose body their RL
+    /// episodes (`Control::final_rl_episodes`): until weights at least that new are here, the
+    /// run's last weights are not (an error after [`FINAL_WEIGHTS_PATIENCE`]). The two topics
+    /// keep no order between them, and the final weights may repeat the version of the last
+    /// round's weights with more episodes: both are checked.
     fn newest_weights(&mut self) -> Result<Option<Arrived>, ProcessError> {
-        let final_version = self
+        let final_weights = self
             .links
             .control
             .latest()?
             .filter(|c| c.body.phase == RunPhase::Finished)
-            .map(|c| c.header.policy_version);
+            .map(|c| (c.header.policy_version, c.body.final_rl_episodes));
         let Some(weights) = self.links.weights.latest()? else {
             self.links.wait()?;
             return Ok(None);
         };
         let version = weights.body.version;
-        let finished = match final_version {
-            Some(last) if version < last => {
+        let trained = weights.body.rl_episodes;
+        let finished = match final_weights {
+            // Earlier weights than the final ones: an older version, or the final version with
+            // fewer RL episodes (the last episodes were taken after the last round of updates).
+            Some((last, episodes))
+                if version < last
+                    || (version == last
+                        && matches!((trained, episodes), (Some(e), Some(n)) if e < n)) =>
+            {
                 let since = *self.finished_seen.get_or_insert_with(Instant::now);
                 if since.elapsed() > FINAL_WEIGHTS_PATIENCE {
                     return Err(ProcessError::Other(format!(
-                        "the run finished with weights version {last}, but the newest that arrived in {} s is {version}",
-                        FINAL_WEIGHTS_PATIENCE.as_secs()
+                        "the run finished with weights version {last} ({} RL episodes), but the newest that arrived in {} s is version {version} ({} RL episodes)",
+                        episodes.map_or("?".into(), |n| n.to_string()),
+                        FINAL_WEIGHTS_PATIENCE.as_secs(),
+                        trained.map_or("?".into(), |n| n.to_string())
                     )));
                 }
                 self.links.wait()?;

@@ -88,6 +88,7 @@ fn a_rogue_high_version_neither_hangs_nor_silences_the_evaluator() {
         phase,
         epsilon: 0.5,
         credits: Vec::new(),
+        final_rl_episodes: None,
     };
     cp.publish(il, &control(RunPhase::Training)).unwrap();
 

@@ -33,6 +33,7 @@ fn orca() -> Subject<'static> {
         planning_top_k: 0,
         planning_breadth: 0,
         shield_s: 0.0,
+        progress_tolerance: 0.0,
         orca_safety_space_m: 0.0,
     }
 }
@@ -160,6 +161,7 @@ fn the_evaluator_process_reports_a_walled_run() {
         phase: RunPhase::Finished,
         epsilon: 0.0,
         credits: Vec::new(),
+        final_rl_episodes: None,
     };
     let stop = AtomicBool::new(false);
     let exit = std::thread::scope(|s| {

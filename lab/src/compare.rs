@@ -95,6 +95,7 @@ pub fn load_sources(paths: &[PathBuf]) -> anyhow::Result<Vec<Sourced>> {
                     planning_top_k: cfg.as_ref().map_or(0, |c| c.train.planning_top_k),
                     planning_breadth: cfg.as_ref().map_or(0, |c| c.train.planning_breadth),
                     shield_s: cfg.as_ref().map_or(0.0, |c| c.train.shield_s),
+                    progress_tolerance: cfg.as_ref().map_or(0.0, |c| c.train.progress_tolerance),
                     trained_setting: cfg.map(|c| c.run.setting),
                     settings: r.settings,
                 };
@@ -617,6 +618,7 @@ mod tests {
                 planning_top_k: 0,
                 planning_breadth: 0,
                 shield_s: 0.0,
+                progress_tolerance: 0.0,
                 trained_setting: Some("env1-invisible".into()),
                 settings: vec![SettingReport::new("env1-invisible", &agg)],
             }],

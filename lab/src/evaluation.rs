@@ -33,6 +33,8 @@ pub struct EvalPlan {
     pub crowd: Crowd,
     /// Overrides every model's `train.shield_s` (`fsrl eval --shield-s`).
     pub shield_s: Option<f64>,
+    /// Overrides every model's `train.progress_tolerance` (`fsrl eval --progress-tolerance`).
+    pub progress_tolerance: Option<f64>,
 }
 
 /// The most moving people `fsrl eval --people` accepts.
@@ -137,6 +139,7 @@ pub fn evaluate_orca(
         planning_top_k: 0,
         planning_breadth: 0,
         shield_s: 0.0,
+        progress_tolerance: 0.0,
         orca_safety_space_m: plan.orca_safety_space_m,
     };
     let settings = evaluate_in_crowd(subject, sim, plan, done)?;
@@ -151,6 +154,7 @@ pub fn evaluate_orca(
         planning_top_k: 0,
         planning_breadth: 0,
         shield_s: 0.0,
+        progress_tolerance: 0.0,
         settings,
     })
 }
@@ -192,6 +196,9 @@ impl LoadedPolicy {
             planning_top_k: plan.planning_top_k.unwrap_or(learned.planning_top_k),
             planning_breadth: plan.planning_breadth.unwrap_or(learned.planning_breadth),
             shield_s: plan.shield_s.unwrap_or(learned.shield_s),
+            progress_tolerance: plan
+                .progress_tolerance
+                .unwrap_or(learned.progress_tolerance),
             ..learned
         };
         let settings = evaluate_in_crowd(subject, &model.sim, plan, done)
@@ -207,6 +214,7 @@ impl LoadedPolicy {
             planning_top_k: subject.planning_top_k,
             planning_breadth: subject.planning_breadth,
             shield_s: subject.shield_s,
+            progress_tolerance: subject.progress_tolerance,
             settings,
         })
     }
@@ -416,6 +424,7 @@ mod tests {
             planning_breadth: None,
             crowd: c(20),
             shield_s: None,
+            progress_tolerance: None,
         };
         let r = evaluate_orca(&sim, &plan, &|| {}).unwrap();
         assert!(r.settings.iter().all(|s| s.episodes == 3));
@@ -438,6 +447,7 @@ mod tests {
             planning_breadth: None,
             crowd: Crowd::default(),
             shield_s: None,
+            progress_tolerance: None,
         };
         let done = AtomicUsize::new(0);
         let one = evaluate_orca(&sim, &plan(1), &|| {

@@ -644,6 +644,7 @@ mod tests {
             planning_top_k: 0,
             planning_breadth: 0,
             shield_s: 0.0,
+            progress_tolerance: 0.0,
             trained_setting: None,
             settings: settings
                 .iter()

@@ -682,6 +682,10 @@ pub struct SubjectReport {
     /// The people shield's horizon the decisions had (absent: 0, off; `train.shield_s`).
     #[serde(default, skip_serializing_if = "is_zero_f64")]
     pub shield_s: f64,
+    /// The progress tie-break's tolerance the decisions had (absent: 0, off;
+    /// `train.progress_tolerance`).
+    #[serde(default, skip_serializing_if = "is_zero_f64")]
+    pub progress_tolerance: f64,
     pub settings: Vec<SettingReport>,
 }
 

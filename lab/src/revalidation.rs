@@ -288,6 +288,7 @@ pub fn evaluate_snapshot(path: &Path, how: &Plan, k: usize, n: usize) -> anyhow:
         planning_breadth: None,
         crowd: Default::default(),
         shield_s: None,
+        progress_tolerance: None,
     };
     let terminal = std::io::stderr().is_terminal();
     let done = AtomicU32::new(0);

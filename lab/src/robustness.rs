@@ -136,6 +136,7 @@ pub fn run(
             planning_breadth: None,
             crowd: variant.crowd(),
             shield_s: None,
+            progress_tolerance: None,
         };
         let report = |subjects| EvalReport {
             kind: EVAL_KIND.into(),

@@ -148,6 +148,7 @@ fn plan(settings: Vec<Setting>, episodes: u32) -> EvalPlan {
         planning_breadth: None,
         crowd: Default::default(),
         shield_s: None,
+        progress_tolerance: None,
     }
 }
 

@@ -527,10 +527,13 @@ impl<'a> Learner<'a> {
                     .saturating_add(self.opts.in_flight_per_actor),
             })
             .collect();
+        let phase = self.phase();
         let c = Control {
-            phase: self.phase(),
+            phase,
             epsilon: self.core.epsilon() as f32,
             credits,
+            final_rl_episodes: (phase == RunPhase::Finished)
+                .then(|| self.core.counters().rl_episodes),
         };
         if let Err(e) = self
             .control

@@ -91,6 +91,7 @@ fn imitation_learns_a_policy_far_better_than_random() {
         planning_top_k: 0,
         planning_breadth: 0,
         shield_s: 0.0,
+        progress_tolerance: 0.0,
         orca_safety_space_m: 0.0,
     };
     let res = evaluate(subject, &SimConfig::default(), &[setting()], 1000, 100, 2).unwrap();

@@ -66,7 +66,10 @@ pub struct Lookahead {
     /// The second steps planning tries after each first step: this many of the decision's best
     /// first-step actions (0: the whole action set).
     planning_breadth: usize,
-    /// Per candidate of the last decision: the robot after its step (planning only).
+    /// The progress tie-break's tolerance (0: off; `train.progress_tolerance`).
+    progress_tolerance: f64,
+    /// Per candidate of the last decision: the robot after its step (planning or the progress
+    /// tie-break only).
     robot_next: Vec<RobotState>,
     plan: PlanBuffers,
     /// The network's batches split over this many threads (1: the caller's alone).
@@ -82,6 +85,8 @@ struct PlanBuffers {
     chosen: Vec<usize>,
     /// The actions tried as second steps.
     second: Vec<usize>,
+    /// The rescored first steps of the last decision: (depth-2 value, action).
+    scored: Vec<(f64, usize)>,
     ranked: Vec<(f64, usize)>,
     /// The humans two steps ahead, as the network sees them.
     obs: Vec<HumanObs>,
@@ -121,6 +126,7 @@ impl Lookahead {
             walled: Vec::new(),
             shield_s: 0.0,
             threatened: Vec::new(),
+            progress_tolerance: 0.0,
             planning_top_k: 0,
             planning_breadth: 0,
             robot_next: Vec::new(),
@@ -169,6 +175,16 @@ impl Lookahead {
     /// (`train.shield_s`; docs/CROWDS.md).
     pub fn with_shield(mut self, horizon_s: f64) -> Self {
         self.shield_s = horizon_s;
+        self
+    }
+
+    /// The progress tie-break (issue 54 item 4; 0: off, the paper): among the candidates whose
+    /// final lookahead value (one-step, or depth-2 with planning) is within `tolerance` of the
+    /// best, the one whose step ends nearest the goal is chosen (ties keep the best, then the
+    /// lower index). Walls and the people shield come first: a vetoed candidate has value −∞.
+    /// Beyond the paper (`train.progress_tolerance`; docs/REPRODUCTION.md Experiment 31).
+    pub fn with_progress_tolerance(mut self, tolerance: f64) -> Self {
+        self.progress_tolerance = tolerance;
         self
     }
 
@@ -272,7 +288,7 @@ impl Lookahead {
                     self.shield_s,
                 ));
             }
-            if self.planning_top_k > 0 {
+            if self.planning_top_k > 0 || self.progress_tolerance > 0.0 {
                 self.robot_next.push(eval.robot_next);
             }
             featurize_into(
@@ -321,9 +337,45 @@ impl Lookahead {
             return Err(PolicyError::NonFinite("lookahead values"));
         }
         if self.planning_top_k == 0 {
+            if self.progress_tolerance <= 0.0 {
+                return Ok(best);
+            }
+            let scores = (0..n_actions).map(|a| {
+                let value = self.score(self.rewards[a], self.values[a], self.terminal[a], discount);
+                (value, a)
+            });
+            return Ok(self.prefer_progress(best, robot.goal, scores));
+        }
+        let best = self.plan_second_step(env, net, discount, seen_goal)?;
+        if self.progress_tolerance <= 0.0 {
             return Ok(best);
         }
-        self.plan_second_step(env, net, discount, seen_goal)
+        let scores = self.plan.scored.iter().copied();
+        Ok(self.prefer_progress(best, robot.goal, scores))
+    }
+
+    /// The progress tie-break over `candidates` (value, action) of a decision whose best is
+    /// `best`: the candidate within the tolerance of the best value whose step ends nearest
+    /// `goal`; `best` itself when no other is nearer.
+    fn prefer_progress(
+        &self,
+        best: Decision,
+        goal: Vec2,
+        candidates: impl Iterator<Item = (f64, usize)>,
+    ) -> Decision {
+        let floor = best.value - self.progress_tolerance;
+        let distance = |a: usize| (goal - self.robot_next[a].position).norm();
+        let mut chosen = (best, distance(best.action));
+        for (value, action) in candidates {
+            if value.is_finite() && value >= floor {
+                let d = distance(action);
+                // Strictly nearer: ties keep the best, then the lower index.
+                if d < chosen.1 {
+                    chosen = (Decision { action, value }, d);
+                }
+            }
+        }
+        chosen.0
     }
 
     /// Depth-2 planning: rescores the `planning_top_k` best first steps of the decision just
@@ -444,6 +496,7 @@ impl Lookahead {
             action: 0,
             value: f64::NEG_INFINITY,
         };
+        plan.scored.clear();
         let mut row = 0;
         for &a in &plan.chosen {
             let value = if self.terminal[a] {
@@ -459,6 +512,7 @@ impl Lookahead {
                 }
                 self.rewards[a] + discount * second
             };
+            plan.scored.push((value, a));
             // Candidates come best first: strictly greater keeps the better one-step score.
             if value > best.value {
                 best = Decision { action: a, value };
@@ -861,6 +915,78 @@ mod tests {
             }
             assert!(steps > 10);
         }
+    }
+
+    /// The progress tie-break decides, among the candidates within the tolerance of the best
+    /// value (one-step, or depth-2 over every first step written out by hand), the one whose
+    /// step ends nearest the goal; a tolerance of 0 is the plain decision. Fails when the
+    /// tolerance is ignored (the decisions differ on some of these states) or misapplied.
+    #[test]
+    fn the_progress_tie_break_takes_the_nearest_to_the_goal_among_the_near_best() {
+        let setting: Setting = "env1-invisible".parse().unwrap();
+        let mut env = Env::new(SimConfig::default(), setting, 0).unwrap();
+        let net = ValueNet::new(NetConfig::sarl(), 5).unwrap();
+        let model = HumanModel::ConstantVelocity;
+        let new = || Lookahead::new(0.9, model, HumanOrder::AsGiven);
+        let mut plain = new();
+        let mut zero = new().with_progress_tolerance(0.0);
+        // Several tolerances, so that one applied at the wrong scale is caught too.
+        let mut bold: Vec<(f64, Lookahead, Lookahead)> = [0.005, 0.02, 0.08]
+            .into_iter()
+            .map(|t| {
+                let planned = new()
+                    .with_planning(MAX_PLANNING_TOP_K)
+                    .with_progress_tolerance(t);
+                (t, new().with_progress_tolerance(t), planned)
+            })
+            .collect();
+        // By hand: the best (lowest index among equals), then any strictly nearer one within
+        // the tolerance.
+        fn nearest_within(env: &mut Env, values: &[f64], tolerance: f64) -> (usize, f64) {
+            let best = values.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+            let goal = env.robot().goal;
+            let mut d = |a: usize| (goal - env.preview(a).unwrap().robot_next.position).norm();
+            let mut chosen = values.iter().position(|&v| v == best).unwrap();
+            let mut nearest = d(chosen);
+            for (a, &v) in values.iter().enumerate() {
+                let da = d(a);
+                if v >= best - tolerance && da < nearest {
+                    (chosen, nearest) = (a, da);
+                }
+            }
+            (chosen, values[chosen])
+        }
+        let (mut states, mut differ) = (0, 0);
+        for seed in 0..4 {
+            env.reset(seed).unwrap();
+            for _ in 0..5 {
+                let paper = plain.decide(&mut env, &net).unwrap();
+                assert_eq!(zero.decide(&mut env, &net).unwrap(), paper);
+                let one_step: Vec<f64> = plain.last_values().collect();
+                let by_hand = depth_two_by_hand(&env, &net, 0.9, None);
+                for (tolerance, one, two) in &mut bold {
+                    let (a, v) = nearest_within(&mut env, &one_step, *tolerance);
+                    let d = one.decide(&mut env, &net).unwrap();
+                    assert_eq!(
+                        (d.action, d.value),
+                        (a, v),
+                        "seed {seed}, one step, {tolerance}"
+                    );
+                    differ += usize::from(d.action != paper.action);
+                    let (a, v) = nearest_within(&mut env, &by_hand, *tolerance);
+                    let d = two.decide(&mut env, &net).unwrap();
+                    assert_eq!(d.action, a, "seed {seed}, depth two, {tolerance}");
+                    assert!((d.value - v).abs() < 1e-5, "{} against {v}", d.value);
+                }
+                states += 1;
+                let action = env.orca_robot_action(0.0);
+                env.step(action).unwrap();
+            }
+        }
+        assert!(
+            differ > 0,
+            "the tie-break changed none of {states} decisions"
+        );
     }
 
     /// With k first steps rescored, the decision is one of the k best one-step candidates, and

@@ -262,6 +262,10 @@ fn is_zero_f64(v: &f64) -> bool {
 /// The longest people shield `train.shield_s` accepts, in seconds.
 pub const MAX_SHIELD_S: f64 = 5.0;
 
+/// The widest progress tie-break `train.progress_tolerance` accepts (lookahead values are
+/// returns, at most 1 for reaching the goal).
+pub const MAX_PROGRESS_TOLERANCE: f64 = 1.0;
+
 fn is_true(b: &bool) -> bool {
     *b
 }
@@ -368,6 +372,12 @@ pub struct TrainConfig {
     /// (issue 54, docs/CROWDS.md); not written when 0.
     #[serde(skip_serializing_if = "is_zero_f64")]
     pub shield_s: f64,
+    /// The progress tie-break (`Lookahead::with_progress_tolerance`; 0, the paper: off): among
+    /// the candidates whose lookahead value is within this much of the best, the one whose step
+    /// ends nearest the goal is chosen, at decision time and in training. Beyond the paper
+    /// (issue 54 item 4, docs/REPRODUCTION.md Experiment 31); not written when 0.
+    #[serde(skip_serializing_if = "is_zero_f64")]
+    pub progress_tolerance: f64,
     pub imitation: ImitationConfig,
     pub rl: RlConfig,
     /// Write a checkpoint every this many RL episodes (0: only at the end).
@@ -524,6 +534,7 @@ impl Default for TrainConfig {
             planning_breadth: 0,
             planning_in_training: true,
             shield_s: 0.0,
+            progress_tolerance: 0.0,
             imitation: ImitationConfig::default(),
             rl: RlConfig::default(),
             checkpoint_every_episodes: 500,
@@ -547,6 +558,7 @@ impl TrainConfig {
             .with_planning(self.planning_top_k)
             .with_planning_breadth(self.planning_breadth)
             .with_shield(self.shield_s)
+            .with_progress_tolerance(self.progress_tolerance)
     }
 
     /// The actors' lookahead: as [`TrainConfig::lookahead`], without planning unless
@@ -638,6 +650,14 @@ impl TrainConfig {
             p.push(format!(
                 "train.shield_s must be in [0, {MAX_SHIELD_S}] seconds, got {}",
                 self.shield_s
+            ));
+        }
+        if !(self.progress_tolerance.is_finite()
+            && (0.0..=MAX_PROGRESS_TOLERANCE).contains(&self.progress_tolerance))
+        {
+            p.push(format!(
+                "train.progress_tolerance must be in [0, {MAX_PROGRESS_TOLERANCE}] (a lookahead value, the scale of a return), got {}",
+                self.progress_tolerance
             ));
         }
         if self.planning_breadth > 0 && self.planning_top_k == 0 {
@@ -806,6 +826,30 @@ mod tests {
             };
             let p = c.problems();
             assert!(p.len() == 1 && p[0].contains("train.shield_s"), "{p:?}");
+        }
+    }
+
+    #[test]
+    fn the_progress_tie_break_is_read_checked_and_absent_when_off() {
+        let parsed: TrainConfig = toml::from_str("progress_tolerance = 0.01\n").unwrap();
+        assert_eq!(parsed.progress_tolerance, 0.01);
+        assert!(parsed.problems().is_empty());
+        assert!(toml::to_string(&parsed)
+            .unwrap()
+            .contains("progress_tolerance = 0.01"));
+        assert!(!toml::to_string(&TrainConfig::default())
+            .unwrap()
+            .contains("progress_tolerance"));
+        for bad in [-0.01, 1.5, f64::NAN, f64::INFINITY] {
+            let c = TrainConfig {
+                progress_tolerance: bad,
+                ..TrainConfig::default()
+            };
+            let p = c.problems();
+            assert!(
+                p.len() == 1 && p[0].contains("train.progress_tolerance"),
+                "{p:?}"
+            );
         }
     }
 

@@ -85,6 +85,13 @@ pub struct Control {
     pub epsilon: f32,
     /// Flow-control credits, one grant per actor (actors without a grant wait).
     pub credits: Vec<CreditGrant>,
+    /// With [`RunPhase::Finished`]: the RL episodes the run's final weights were trained on.
+    /// Their version (this message's header) is not enough to know them by: in the adaptive
+    /// mode a version is a round of updates, and the last episodes may be taken after the last
+    /// round, so the final weights can repeat the version of earlier weights that carried fewer
+    /// episodes. Absent from older learners.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub final_rl_episodes: Option<u64>,
 }
 
 impl Control {

@@ -182,6 +182,7 @@ pub fn control() -> Control {
                 episode_budget: 48,
             },
         ],
+        final_rl_episodes: None,
     }
 }
 

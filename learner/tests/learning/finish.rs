@@ -91,6 +91,11 @@ fn the_finished_control_names_the_final_weights() {
         .find(|c| c.body.phase == RunPhase::Finished)
         .expect("a Finished control");
     let version = first.header.policy_version;
+    assert_eq!(
+        first.body.final_rl_episodes,
+        Some(EPISODES),
+        "Finished says how many RL episodes the final weights carry"
+    );
     let of_version: Vec<_> = seen_weights
         .iter()
         .filter(|(v, _)| *v == version)
@@ -107,8 +112,25 @@ fn the_finished_control_names_the_final_weights() {
 /// the fix it validated the weights it had, of the round before, and left.
 #[test]
 fn the_evaluator_validates_the_final_weights_even_when_they_come_late() {
+    the_final_weights_come_late((5, 39));
+}
+
+/// The same when the earlier weights have the final version: the last episode was taken after
+/// the last round of updates (the adaptive mode owed it none), so the final weights repeat that
+/// round's version with one more RL episode. `Finished` says how many; before the fix the
+/// evaluator labelled the final validation with the earlier count (seen once in a loaded CI as
+/// a distributed 6-episode run whose last validation read 5, tests/cli_train.rs).
+#[test]
+fn the_evaluator_labels_the_final_weights_by_their_episodes_when_their_version_repeats() {
+    the_final_weights_come_late((6, 39));
+}
+
+/// The learner's end seen by an evaluator in the worst order: weights `early` (version, RL
+/// episodes), then `Finished` naming version 6 and 40 episodes, then, late, the final weights
+/// (version 6, 40 episodes). The run's last validation must be of those.
+fn the_final_weights_come_late(early: (u64, u64)) {
     let port = free_port();
-    let run = RunId::new(format!("fev{}", std::process::id())).unwrap();
+    let run = RunId::new(format!("fev{}x{}", std::process::id(), early.0)).unwrap();
     let learner = transport(&run, SenderId::learner(), port, true);
     let mut train = TrainConfig::default();
     train.imitation.epochs = 1;
@@ -134,12 +156,15 @@ fn the_evaluator_validates_the_final_weights_even_when_they_come_late() {
     };
     let weights = learner.latest_publisher(&keys::weights(&run)).unwrap();
     let control = learner.latest_publisher(&keys::control(&run)).unwrap();
-    // Weights of the round before the last episode, then `Finished` naming version 6.
-    weights.publish(5, &message(5, 39)).unwrap();
+    // Weights published before the last episode, then `Finished` naming version 6.
+    weights
+        .publish(early.0, &message(early.0, early.1))
+        .unwrap();
     let finished = Control {
         phase: RunPhase::Finished,
         epsilon: 0.0,
         credits: Vec::new(),
+        final_rl_episodes: Some(40),
     };
     control.publish(6, &finished).unwrap();
     let ev = transport(&run, SenderId::evaluator(0), port, false);
