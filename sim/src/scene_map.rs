@@ -260,10 +260,6 @@ struct DocMap {
     obstacles: Vec<Spanned<DocShape>>,
 }
 
-/// Parses a map file: `[[obstacles]]` tables exactly as in a scene file (see the module docs)
-/// and nothing else (no cases: a served robot's map, in its odometry frame, `fsrl serve
-/// --map`). Every shape is checked as in a scene file and every problem reported at once, each
-/// naming its line and obstacle; a file without obstacles is refused.
 /// Parses a scene file's text, CSV or TOML (`crate::scenes`' module docs); radii and preferred
 /// speeds not given in the file come from `cfg` (`robot.radius_m`, `robot.v_pref_mps`,
 /// `humans.radius_m`, `humans.v_pref_mps`).
@@ -275,6 +271,10 @@ pub fn parse_scenes(text: &str, cfg: &SimConfig) -> Result<SceneFile, SceneError
     }
 }
 
+/// Parses a map file: `[[obstacles]]` tables exactly as in a scene file (see the module docs)
+/// and nothing else (no cases: a served robot's map, in its odometry frame, `fsrl serve
+/// --map`). Every shape is checked as in a scene file and every problem reported at once, each
+/// naming its line and obstacle; a file without obstacles is refused.
 pub fn parse_toml_map(text: &str) -> Result<StaticMap, SceneError> {
     let doc: DocMap = toml::from_str(text).map_err(|e| SceneError::Toml {
         line: e.span().map(|s| line_of(text, s.start)),
@@ -307,7 +307,11 @@ pub fn parse_toml_map(text: &str) -> Result<StaticMap, SceneError> {
     })
 }
 
-/// Parses fsrl's TOML scene text (see the module docs); defaults from `cfg`.
+/// Parses fsrl's TOML scene text (see the module docs); defaults from `cfg`. Each case is read
+/// in steps, every problem of every step collected before the file is refused: its robot
+/// ([`case_robot`]), its people ([`case_humans`]), and, with obstacles, where its agents stand
+/// ([`check_placement`]), whether the robot can reach its goal ([`check_reachable`]) and its
+/// walls ([`SharedWalls`]).
 pub fn parse_toml_scenes(text: &str, cfg: &SimConfig) -> Result<SceneFile, SceneError> {
     let doc: DocFile = toml::from_str(text).map_err(|e| SceneError::Toml {
         line: e.span().map(|s| line_of(text, s.start)),
@@ -319,8 +323,7 @@ pub fn parse_toml_scenes(text: &str, cfg: &SimConfig) -> Result<SceneFile, Scene
     if doc.cases.is_empty() {
         problems.push(SceneProblem::NoCases);
     }
-    // Walls of cases with the file's obstacles only, by the roadmap's person radius.
-    let mut shared_walls: Vec<(f64, Arc<Walls>)> = Vec::new();
+    let mut shared_walls = SharedWalls::default();
     let mut first_line_of: std::collections::HashMap<u64, usize> = Default::default();
     let mut cases = Vec::with_capacity(doc.cases.len());
     for (index, spanned) in doc.cases.iter().enumerate() {
@@ -337,206 +340,31 @@ pub fn parse_toml_scenes(text: &str, cfg: &SimConfig) -> Result<SceneFile, Scene
             first_line_of.insert(case, line);
         }
         let before = problems.len();
-
-        let robot_line = line_of(text, c.robot.span().start);
-        let rd = c.robot.get_ref();
-        let (start, goal) = (rd.start.0, rd.goal.0);
-        let mut robot = initial_robot(cfg);
-        for (end, p) in [(End::Start, start), (End::Goal, goal)] {
-            if !finite(p) {
-                problems.push(SceneProblem::NonFinitePoint {
-                    line: robot_line,
-                    case,
-                    agent: AgentRef::Robot,
-                    end,
-                    point: p,
-                });
-            }
-        }
-        robot.position = Vec2::new(start[0], start[1]);
-        robot.goal = Vec2::new(goal[0], goal[1]);
-        robot.radius_m = number(
-            &mut problems,
-            case,
-            robot_line,
-            AgentRef::Robot,
-            "radius_m",
-            rd.radius_m,
-            cfg.robot.radius_m,
-            |v| v.is_finite() && v > 0.0,
-            "a finite number > 0",
-        );
-        robot.v_pref_mps = number(
-            &mut problems,
-            case,
-            robot_line,
-            AgentRef::Robot,
-            "v_pref_mps",
-            rd.v_pref_mps,
-            cfg.robot.v_pref_mps,
-            |v| v.is_finite() && v > 0.0,
-            "a finite number > 0",
-        );
-        let mut humans = Vec::with_capacity(c.humans.len());
-        let mut human_lines = Vec::with_capacity(c.humans.len());
-        for (k, spanned) in c.humans.iter().enumerate() {
-            let hline = line_of(text, spanned.span().start);
-            let h = spanned.get_ref();
-            let agent = AgentRef::Human(k);
-            let radius_m = number(
-                &mut problems,
-                case,
-                hline,
-                agent,
-                "radius_m",
-                h.radius_m,
-                cfg.humans.radius_m,
-                |v| v.is_finite() && v > 0.0,
-                "a finite number > 0",
-            );
-            let v_pref_mps = number(
-                &mut problems,
-                case,
-                hline,
-                agent,
-                "v_pref_mps",
-                h.v_pref_mps,
-                cfg.humans.v_pref_mps,
-                |v| v.is_finite() && v >= 0.0,
-                "a finite number >= 0",
-            );
-            let start = h.start.0;
-            let goal = match (h.goal, h.standing) {
-                (_, true) => start,
-                (Some(g), false) => g.0,
-                (None, false) => {
-                    problems.push(SceneProblem::NoGoal {
-                        line: hline,
-                        case,
-                        human: k,
-                    });
-                    start
-                }
-            };
-            for (end, p) in [(End::Start, start), (End::Goal, goal)] {
-                if !finite(p) && (end == End::Start || !h.standing) {
-                    problems.push(SceneProblem::NonFinitePoint {
-                        line: hline,
-                        case,
-                        agent,
-                        end,
-                        point: p,
-                    });
-                }
-            }
-            humans.push(HumanState {
-                position: Vec2::new(start[0], start[1]),
-                velocity: Vec2::zeros(),
-                goal: Vec2::new(goal[0], goal[1]),
-                radius_m,
-                v_pref_mps,
-                standing: h.standing,
-            });
-            human_lines.push(hline);
-        }
-
+        let (robot, robot_line) = case_robot(text, cfg, case, c, &mut problems);
+        let (humans, human_lines) = case_humans(text, cfg, case, c, &mut problems);
         let own = check_shapes(text, Some(case), &c.obstacles, &mut problems);
         let has_obstacles = !(shared.is_empty() && own.is_empty());
         let mut walls = None;
         // Placement and reachability need a valid map and finite agents.
         if has_obstacles && shared_valid && problems.len() == before {
             let all: Vec<&Checked> = shared.iter().chain(&own).collect();
-            let mut agents: Vec<(usize, AgentRef, End, Vec2, f64)> = vec![
-                (
-                    robot_line,
-                    AgentRef::Robot,
-                    End::Start,
-                    robot.position,
-                    robot.radius_m,
-                ),
-                (
-                    robot_line,
-                    AgentRef::Robot,
-                    End::Goal,
-                    robot.goal,
-                    robot.radius_m,
-                ),
-            ];
-            for (k, h) in humans.iter().enumerate() {
-                let agent = AgentRef::Human(k);
-                agents.push((human_lines[k], agent, End::Start, h.position, h.radius_m));
-                if !h.standing {
-                    agents.push((human_lines[k], agent, End::Goal, h.goal, h.radius_m));
-                }
-            }
-            for (line, agent, end, point, radius_m) in agents {
-                let hit = all.iter().find_map(|c| {
-                    let alone = c.alone.as_ref().expect("checked valid");
-                    contact(alone, point, radius_m).map(|k| (c.place, k))
-                });
-                if let Some((obstacle, contact)) = hit {
-                    problems.push(SceneProblem::Blocked {
-                        line,
-                        case,
-                        agent,
-                        end,
-                        point,
-                        obstacle,
-                        contact,
-                    });
-                }
-            }
+            let agents = Agents {
+                case,
+                robot: &robot,
+                robot_line,
+                humans: &humans,
+                human_lines: &human_lines,
+            };
+            check_placement(&agents, &all, &mut problems);
             let shapes: Vec<Shape> = all.iter().map(|c| c.shape.clone()).collect();
             let map = StaticMap::new(shapes).expect("every shape is valid alone");
             if problems.len() == before {
-                match map.reachable(robot.position, robot.goal, robot.radius_m, REACH_CELL_M) {
-                    Ok(true) => {}
-                    Ok(false) => problems.push(SceneProblem::Unreachable {
-                        line: robot_line,
-                        case,
-                        start: robot.position,
-                        goal: robot.goal,
-                        radius_m: robot.radius_m,
-                        cell_m: REACH_CELL_M,
-                    }),
-                    Err(error) => problems.push(SceneProblem::Reachability {
-                        line: robot_line,
-                        case,
-                        error,
-                    }),
-                }
+                check_reachable(&agents, &map, &mut problems);
             }
-            // The roadmap is for the case's largest person (its ORCA radius).
-            let roadmap_radius_m = if humans.is_empty() {
-                cfg.humans.radius_m
-            } else {
-                humans.iter().map(|h| h.radius_m).fold(0.0, f64::max)
-            } + cfg.orca.radius_margin_m;
-            let cached = own
-                .is_empty()
-                .then(|| {
-                    shared_walls
-                        .iter()
-                        .find(|(r, _)| *r == roadmap_radius_m)
-                        .map(|(_, w)| Arc::clone(w))
-                })
-                .flatten();
-            walls = match cached {
-                Some(w) => Some(w),
-                None => match Walls::new(map, cfg, roadmap_radius_m) {
-                    Ok(w) => {
-                        let w = Arc::new(w);
-                        if own.is_empty() {
-                            shared_walls.push((roadmap_radius_m, Arc::clone(&w)));
-                        }
-                        Some(w)
-                    }
-                    Err(error) => {
-                        problems.push(SceneProblem::Walls { line, case, error });
-                        None
-                    }
-                },
-            };
+            walls = shared_walls
+                .for_case(map, own.is_empty(), &humans, cfg)
+                .map_err(|error| problems.push(SceneProblem::Walls { line, case, error }))
+                .ok();
         }
         cases.push(SceneCase {
             case,
@@ -555,4 +383,236 @@ pub fn parse_toml_scenes(text: &str, cfg: &SimConfig) -> Result<SceneFile, Scene
         format: SceneFormat::Toml,
         cases,
     })
+}
+
+/// A case's robot, its radius and preferred speed defaulting to `cfg`'s, and the line of its
+/// table; its problems (non-finite start or goal, bad numbers) pushed to `problems`.
+fn case_robot(
+    text: &str,
+    cfg: &SimConfig,
+    case: u64,
+    c: &DocCase,
+    problems: &mut Vec<SceneProblem>,
+) -> (crate::robot::RobotState, usize) {
+    let robot_line = line_of(text, c.robot.span().start);
+    let rd = c.robot.get_ref();
+    let (start, goal) = (rd.start.0, rd.goal.0);
+    let mut robot = initial_robot(cfg);
+    for (end, p) in [(End::Start, start), (End::Goal, goal)] {
+        if !finite(p) {
+            problems.push(SceneProblem::NonFinitePoint {
+                line: robot_line,
+                case,
+                agent: AgentRef::Robot,
+                end,
+                point: p,
+            });
+        }
+    }
+    robot.position = Vec2::new(start[0], start[1]);
+    robot.goal = Vec2::new(goal[0], goal[1]);
+    let positive = |v: f64| v.is_finite() && v > 0.0;
+    robot.radius_m = number(
+        problems,
+        case,
+        robot_line,
+        AgentRef::Robot,
+        "radius_m",
+        rd.radius_m,
+        cfg.robot.radius_m,
+        positive,
+        "a finite number > 0",
+    );
+    robot.v_pref_mps = number(
+        problems,
+        case,
+        robot_line,
+        AgentRef::Robot,
+        "v_pref_mps",
+        rd.v_pref_mps,
+        cfg.robot.v_pref_mps,
+        positive,
+        "a finite number > 0",
+    );
+    (robot, robot_line)
+}
+
+/// A case's people (a standing person's goal is its start; a walking one needs a goal), their
+/// radii and preferred speeds defaulting to `cfg`'s, and the line of each one's table.
+fn case_humans(
+    text: &str,
+    cfg: &SimConfig,
+    case: u64,
+    c: &DocCase,
+    problems: &mut Vec<SceneProblem>,
+) -> (Vec<HumanState>, Vec<usize>) {
+    let mut humans = Vec::with_capacity(c.humans.len());
+    let mut human_lines = Vec::with_capacity(c.humans.len());
+    for (k, spanned) in c.humans.iter().enumerate() {
+        let hline = line_of(text, spanned.span().start);
+        let h = spanned.get_ref();
+        let agent = AgentRef::Human(k);
+        let radius_m = number(
+            problems,
+            case,
+            hline,
+            agent,
+            "radius_m",
+            h.radius_m,
+            cfg.humans.radius_m,
+            |v| v.is_finite() && v > 0.0,
+            "a finite number > 0",
+        );
+        let v_pref_mps = number(
+            problems,
+            case,
+            hline,
+            agent,
+            "v_pref_mps",
+            h.v_pref_mps,
+            cfg.humans.v_pref_mps,
+            |v| v.is_finite() && v >= 0.0,
+            "a finite number >= 0",
+        );
+        let start = h.start.0;
+        let goal = match (h.goal, h.standing) {
+            (_, true) => start,
+            (Some(g), false) => g.0,
+            (None, false) => {
+                problems.push(SceneProblem::NoGoal {
+                    line: hline,
+                    case,
+                    human: k,
+                });
+                start
+            }
+        };
+        for (end, p) in [(End::Start, start), (End::Goal, goal)] {
+            if !finite(p) && (end == End::Start || !h.standing) {
+                problems.push(SceneProblem::NonFinitePoint {
+                    line: hline,
+                    case,
+                    agent,
+                    end,
+                    point: p,
+                });
+            }
+        }
+        humans.push(HumanState {
+            position: Vec2::new(start[0], start[1]),
+            velocity: Vec2::zeros(),
+            goal: Vec2::new(goal[0], goal[1]),
+            radius_m,
+            v_pref_mps,
+            standing: h.standing,
+        });
+        human_lines.push(hline);
+    }
+    (humans, human_lines)
+}
+
+/// A case's agents as read, with the lines that give them (for the problems' messages).
+struct Agents<'a> {
+    case: u64,
+    robot: &'a crate::robot::RobotState,
+    robot_line: usize,
+    humans: &'a [HumanState],
+    human_lines: &'a [usize],
+}
+
+/// Every start and goal (a standing person's start only) clear of every obstacle by the agent's
+/// radius; each one that is not, a problem naming the obstacle and how it meets it.
+fn check_placement(agents: &Agents<'_>, all: &[&Checked], problems: &mut Vec<SceneProblem>) {
+    let robot = agents.robot;
+    let mut points: Vec<(usize, AgentRef, End, Vec2, f64)> = vec![
+        (
+            agents.robot_line,
+            AgentRef::Robot,
+            End::Start,
+            robot.position,
+            robot.radius_m,
+        ),
+        (
+            agents.robot_line,
+            AgentRef::Robot,
+            End::Goal,
+            robot.goal,
+            robot.radius_m,
+        ),
+    ];
+    for (k, h) in agents.humans.iter().enumerate() {
+        let (line, agent) = (agents.human_lines[k], AgentRef::Human(k));
+        points.push((line, agent, End::Start, h.position, h.radius_m));
+        if !h.standing {
+            points.push((line, agent, End::Goal, h.goal, h.radius_m));
+        }
+    }
+    for (line, agent, end, point, radius_m) in points {
+        let hit = all.iter().find_map(|c| {
+            let alone = c.alone.as_ref().expect("checked valid");
+            contact(alone, point, radius_m).map(|k| (c.place, k))
+        });
+        if let Some((obstacle, contact)) = hit {
+            problems.push(SceneProblem::Blocked {
+                line,
+                case: agents.case,
+                agent,
+                end,
+                point,
+                obstacle,
+                contact,
+            });
+        }
+    }
+}
+
+/// The robot's goal reachable from its start on `map` (a grid of [`REACH_CELL_M`]); a problem
+/// otherwise.
+fn check_reachable(agents: &Agents<'_>, map: &StaticMap, problems: &mut Vec<SceneProblem>) {
+    let (robot, line, case) = (agents.robot, agents.robot_line, agents.case);
+    match map.reachable(robot.position, robot.goal, robot.radius_m, REACH_CELL_M) {
+        Ok(true) => {}
+        Ok(false) => problems.push(SceneProblem::Unreachable {
+            line,
+            case,
+            start: robot.position,
+            goal: robot.goal,
+            radius_m: robot.radius_m,
+            cell_m: REACH_CELL_M,
+        }),
+        Err(error) => problems.push(SceneProblem::Reachability { line, case, error }),
+    }
+}
+
+/// The walls of cases that have only the file's obstacles, built once per roadmap radius and
+/// shared (a roadmap is the costly part).
+#[derive(Default)]
+struct SharedWalls(Vec<(f64, Arc<Walls>)>);
+
+impl SharedWalls {
+    /// The walls of a case on `map` (`shared_only`: the file's obstacles alone), with the
+    /// roadmap for the case's largest person (its ORCA radius).
+    fn for_case(
+        &mut self,
+        map: StaticMap,
+        shared_only: bool,
+        humans: &[HumanState],
+        cfg: &SimConfig,
+    ) -> Result<Arc<Walls>, crate::walled::WallsError> {
+        let roadmap_radius_m = if humans.is_empty() {
+            cfg.humans.radius_m
+        } else {
+            humans.iter().map(|h| h.radius_m).fold(0.0, f64::max)
+        } + cfg.orca.radius_margin_m;
+        if shared_only {
+            if let Some((_, w)) = self.0.iter().find(|(r, _)| *r == roadmap_radius_m) {
+                return Ok(Arc::clone(w));
+            }
+        }
+        let w = Arc::new(Walls::new(map, cfg, roadmap_radius_m)?);
+        if shared_only {
+            self.0.push((roadmap_radius_m, Arc::clone(&w)));
+        }
+        Ok(w)
+    }
 }
