@@ -7,6 +7,10 @@ import json
 import math
 import os
 import statistics as st
+import sys
+
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "crowds"))
+from seeds import welch_p  # noqa: E402  (the Welch test of Experiments C1 and C3)
 
 SETTINGS = ["env1-invisible", "env2-invisible", "env3-invisible",
             "env1-visible", "env2-visible", "env3-visible"]
@@ -39,45 +43,11 @@ def arm(seeds, setting, pattern):
     return [row(p, setting) for p in paths]
 
 
-def welch_p(a, b):
-    """Two-sided p of Welch's t-test (normal tail beyond 30 df, else a t tail by integration)."""
-    va, vb = st.variance(a), st.variance(b)
-    se = math.sqrt(va / len(a) + vb / len(b))
-    if se == 0:
-        return float("nan")
-    t = (st.mean(a) - st.mean(b)) / se
-    df = (va / len(a) + vb / len(b)) ** 2 / (
-        (va / len(a)) ** 2 / (len(a) - 1) + (vb / len(b)) ** 2 / (len(b) - 1))
-    # Student t tail: regularised incomplete beta by continued fraction.
-    x = df / (df + t * t)
-    return betainc(df / 2, 0.5, x)
-
-
-def betainc(a, b, x):
-    if x <= 0:
-        return 0.0
-    if x >= 1:
-        return 1.0
-    lbeta = math.lgamma(a + b) - math.lgamma(a) - math.lgamma(b)
-    front = math.exp(math.log(x) * a + math.log(1 - x) * b + lbeta) / a
-    # Lentz's continued fraction.
-    f, c, d = 1.0, 1.0, 0.0
-    for i in range(200):
-        m = i // 2
-        if i == 0:
-            num = 1.0
-        elif i % 2 == 0:
-            num = (m * (b - m) * x) / ((a + 2 * m - 1) * (a + 2 * m))
-        else:
-            num = -((a + m) * (a + b + m) * x) / ((a + 2 * m) * (a + 2 * m + 1))
-        d = 1 + num * d
-        d = 1 / (d if abs(d) > 1e-30 else 1e-30)
-        c = 1 + num / c
-        c = c if abs(c) > 1e-30 else 1e-30
-        f *= c * d
-        if abs(1 - c * d) < 1e-12:
-            break
-    return front * (f - 1)
+def p_of(a, b):
+    """Welch's two-sided p over seeds (docs/results/crowds/seeds.py's), printed; "–" when
+    neither arm has any spread."""
+    p = welch_p(a, b)
+    return "–" if p is None else f"{p:.3f}"
 
 
 def fmt(values, digits):
@@ -104,8 +74,8 @@ def table(title, arms, seeds):
                 base = (nav, disc)
                 dn = dd = "–"
             else:
-                dn = f"{st.mean(nav) - st.mean(base[0]):+.2f} ({welch_p(nav, base[0]):.3f})"
-                dd = f"{st.mean(disc) - st.mean(base[1]):+.3f} ({welch_p(disc, base[1]):.3f})"
+                dn = f"{st.mean(nav) - st.mean(base[0]):+.2f} ({p_of(nav, base[0])})"
+                dd = f"{st.mean(disc) - st.mean(base[1]):+.3f} ({p_of(disc, base[1])})"
             pn, pd = PAPER[s]
             ok = st.mean(succ) >= 0.99 and st.mean(nav) <= pn and st.mean(disc) <= pd
             why = [w for w, bad in [(f"Nav. {st.mean(nav) - pn:+.2f} s", st.mean(nav) > pn),
